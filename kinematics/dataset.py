@@ -1,0 +1,229 @@
+"""The dataset format of DESIGN.md: one row per measured point, Parquet or CSV + meta sidecar.
+
+Columns: ``t`` (s), ``q1..q6`` (rad, controller), optional ``qs1..qs6`` (rad, secondary
+encoders), optional ``temp_<name>`` (°C), the measured pose ``x, y, z`` (m) and
+``qx, qy, qz, qw``, optional simulator-only ``true_*``. Metadata travels in
+``<dataset>.meta.json`` (both formats) and, for Parquet, in the file's key-value metadata.
+Writes are atomic: a temporary file in the same folder, then a rename.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from kinematics.errors import DatasetError
+from kinematics.transforms import invert, transform_from_xyz_quat
+
+POSE_COLUMNS = ("x", "y", "z", "qx", "qy", "qz", "qw")
+FRAMES = ("base", "tracker")
+META_KEY = b"robocal.meta"
+
+
+@dataclass(frozen=True, kw_only=True)
+class DatasetMeta:
+    """What a dataset says about itself: robot, pose frame, cell frames, noise (SI units)."""
+
+    robot: str
+    frame: str = "base"
+    T_W_0: list[list[float]] | None = None
+    T_6_S: list[list[float]] | None = None
+    noise_floor_m: float | None = None
+    extra: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.frame not in FRAMES:
+            raise DatasetError(f"meta.frame must be one of {FRAMES}, got {self.frame!r}")
+        for key in ("T_W_0", "T_6_S"):
+            value = getattr(self, key)
+            if value is not None and np.asarray(value, dtype=float).shape != (4, 4):
+                raise DatasetError(f"meta.{key} must be a 4x4 matrix")
+
+
+@dataclass
+class Dataset:
+    """A table of measured points and its metadata."""
+
+    table: pd.DataFrame
+    meta: DatasetMeta
+
+    def __len__(self) -> int:
+        return len(self.table)
+
+    @property
+    def n_joints(self) -> int:
+        return len(joint_columns(self.table))
+
+    def q(self) -> np.ndarray:
+        """Controller joint angles ``(N, n)``, rad."""
+        return self.table[joint_columns(self.table)].to_numpy(float)
+
+    def deflection(self) -> np.ndarray | None:
+        """Elastic deflections ``qs - q`` ``(N, n)`` rad, or None without secondary encoders."""
+        cols = secondary_columns(self.table)
+        if not cols:
+            return None
+        return self.table[cols].to_numpy(float) - self.q()
+
+    def temperatures(self) -> np.ndarray | None:
+        """Temperatures ``(N, k)`` °C in column order, or None."""
+        cols = temperature_columns(self.table)
+        return self.table[cols].to_numpy(float) if cols else None
+
+    def measured_poses(self) -> np.ndarray:
+        """Measured poses ``(N, 4, 4)`` in the frame the metadata names."""
+        t = self.table
+        return transform_from_xyz_quat(
+            t[["x", "y", "z"]].to_numpy(float), t[["qx", "qy", "qz", "qw"]].to_numpy(float)
+        )
+
+    def measured_poses_base(self) -> np.ndarray:
+        """Measured probe poses ``T_0_S`` ``(N, 4, 4)`` in the robot base frame."""
+        T = self.measured_poses()
+        if self.meta.frame == "base":
+            return T
+        if self.meta.T_W_0 is None:
+            raise DatasetError("dataset poses are in the tracker frame but meta.T_W_0 is unknown")
+        return invert(np.asarray(self.meta.T_W_0, dtype=float))[None] @ T
+
+    def subset(self, index: np.ndarray) -> Dataset:
+        """The rows at ``index`` (positions), same metadata."""
+        return Dataset(self.table.iloc[np.asarray(index)].reset_index(drop=True), self.meta)
+
+
+def joint_columns(table: pd.DataFrame) -> list[str]:
+    return _numbered(table, "q")
+
+
+def secondary_columns(table: pd.DataFrame) -> list[str]:
+    return _numbered(table, "qs")
+
+
+def temperature_columns(table: pd.DataFrame) -> list[str]:
+    return [c for c in table.columns if c.startswith("temp_")]
+
+
+def _numbered(table: pd.DataFrame, prefix: str) -> list[str]:
+    cols = []
+    while f"{prefix}{len(cols) + 1}" in table.columns:
+        cols.append(f"{prefix}{len(cols) + 1}")
+    return cols
+
+
+def validate(ds: Dataset, source: str = "dataset", limits_rad: np.ndarray | None = None) -> None:
+    """Raise :class:`DatasetError` naming the file, row and field of the first problem."""
+    t = ds.table
+    missing = [c for c in ("t", *POSE_COLUMNS) if c not in t.columns]
+    qcols = joint_columns(t)
+    if not qcols:
+        missing.append("q1")
+    if missing:
+        raise DatasetError(f"{source}: missing column(s) {', '.join(missing)}")
+    sec = secondary_columns(t)
+    if sec and len(sec) != len(qcols):
+        raise DatasetError(f"{source}: {len(sec)} secondary columns qs* for {len(qcols)} joints")
+    numeric = ["t", *qcols, *sec, *temperature_columns(t), *POSE_COLUMNS]
+    for col in numeric:
+        values = pd.to_numeric(t[col], errors="coerce").to_numpy(float)
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            raise DatasetError(
+                f"{source}: row {bad[0]}, column {col!r}: value is not a finite number"
+            )
+    norms = np.linalg.norm(t[["qx", "qy", "qz", "qw"]].to_numpy(float), axis=1)
+    bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-3)
+    if bad.size:
+        raise DatasetError(
+            f"{source}: row {bad[0]}: quaternion norm {norms[bad[0]]:.4f}, expected 1"
+        )
+    if limits_rad is not None:
+        q = t[qcols].to_numpy(float)
+        lo, hi = limits_rad[: len(qcols), 0], limits_rad[: len(qcols), 1]
+        out = np.argwhere((q < lo - 1e-9) | (q > hi + 1e-9))
+        if out.size:
+            r, c = out[0]
+            raise DatasetError(
+                f"{source}: row {r}, column {qcols[c]!r}: {np.rad2deg(q[r, c]):.3f} deg outside "
+                f"the joint limits [{np.rad2deg(lo[c]):.1f}, {np.rad2deg(hi[c]):.1f}] deg"
+            )
+
+
+def meta_path(path: str | Path) -> Path:
+    """The sidecar ``<dataset>.meta.json`` of a dataset file."""
+    path = Path(path)
+    return (
+        path.with_name(path.name + ".meta.json")
+        if path.suffix == ""
+        else path.with_suffix(".meta.json")
+    )
+
+
+def write_dataset(ds: Dataset, path: str | Path) -> Path:
+    """Write ``ds`` to ``.parquet`` or ``.csv`` plus the meta sidecar, atomically."""
+    path = Path(path)
+    if path.suffix not in (".parquet", ".csv"):
+        raise DatasetError(f"{path}: dataset files end in .parquet or .csv, got {path.suffix!r}")
+    meta_json = json.dumps(asdict(ds.meta), indent=2, sort_keys=True)
+    if path.suffix == ".parquet":
+        table = pa.Table.from_pandas(ds.table, preserve_index=False)
+        table = table.replace_schema_metadata(
+            {**(table.schema.metadata or {}), META_KEY: meta_json}
+        )
+        _atomic(path, lambda tmp: pq.write_table(table, tmp))
+    else:
+        _atomic(path, lambda tmp: ds.table.to_csv(tmp, index=False, float_format="%.17g"))
+    _atomic(meta_path(path), lambda tmp: Path(tmp).write_text(meta_json + "\n"))
+    return path
+
+
+def read_dataset(path: str | Path, limits_rad: np.ndarray | None = None) -> Dataset:
+    """Read and validate a dataset (``.parquet`` or ``.csv`` with its sidecar)."""
+    path = Path(path)
+    if not path.exists():
+        raise DatasetError(f"{path}: no such dataset file")
+    raw_meta = None
+    if meta_path(path).exists():
+        raw_meta = meta_path(path).read_text()
+    try:
+        if path.suffix == ".parquet":
+            table = pq.read_table(path)
+            raw_meta = raw_meta or (table.schema.metadata or {}).get(META_KEY, b"").decode() or None
+            frame = table.to_pandas()
+        elif path.suffix == ".csv":
+            frame = pd.read_csv(path)
+        else:
+            raise DatasetError(
+                f"{path}: dataset files end in .parquet or .csv, got {path.suffix!r}"
+            )
+    except (pa.ArrowInvalid, pd.errors.ParserError, UnicodeDecodeError) as exc:
+        raise DatasetError(f"{path}: unreadable: {str(exc).splitlines()[0]}") from None
+    if raw_meta is None:
+        raise DatasetError(f"{path}: no metadata (expected {meta_path(path).name})")
+    try:
+        meta = DatasetMeta(**json.loads(raw_meta))
+    except (TypeError, json.JSONDecodeError) as exc:
+        raise DatasetError(f"{path}: bad metadata: {exc}") from None
+    ds = Dataset(frame, meta)
+    validate(ds, str(path), limits_rad)
+    return ds
+
+
+def _atomic(path: Path, write) -> None:
+    """Call ``write(tmp)`` then rename ``tmp`` over ``path``; nothing half-written remains."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

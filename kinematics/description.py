@@ -1,0 +1,209 @@
+"""Robot descriptions: DH + Hayati parameters, joint limits, J2/J3 coupling, tool, inertia.
+
+A description is loaded once from TOML (DESIGN.md, "Robot description") and passed down as a
+frozen value. Per joint ``T_i = Rz(theta_i + offset_i) Tx(a_i) Tz(d_i) Rx(alpha_i) Ry(beta_i)``
+with ``theta = q_dh`` and ``q_dh = coupling(q_ctrl)``.
+
+>>> ur10 = load_description("ur10")
+>>> ur10.name, ur10.n_joints
+('ur10', 6)
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from kinematics.errors import DescriptionError
+from kinematics.transforms import transform_from_xyz_rpy, xyz_rpy_from_transform
+
+ROBOTS_DIR = Path(__file__).parent / "robots"
+COUPLINGS = ("none", "j3_plus_j2")
+_JOINT_KEYS = {"a_m", "d_m", "alpha_deg", "beta_deg", "offset_deg", "lower_deg", "upper_deg"}
+_JOINT_KEYS_OPTIONAL = {"beta_deg", "offset_deg", "mass_kg", "com_m"}
+
+
+@dataclass(frozen=True, kw_only=True)
+class JointDH:
+    """One revolute joint in DH-Hayati form (m, degrees) with optional link inertia."""
+
+    a_m: float
+    d_m: float
+    alpha_deg: float
+    beta_deg: float = 0.0
+    offset_deg: float = 0.0
+    lower_deg: float = -180.0
+    upper_deg: float = 180.0
+    mass_kg: float = 0.0
+    com_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        for key in ("a_m", "d_m", "alpha_deg", "beta_deg", "offset_deg", "mass_kg"):
+            if not math.isfinite(getattr(self, key)):
+                raise DescriptionError(f"joint.{key} must be finite, got {getattr(self, key)}")
+        if not self.lower_deg < self.upper_deg:
+            raise DescriptionError(
+                f"joint limits must satisfy lower_deg < upper_deg, got "
+                f"{self.lower_deg} >= {self.upper_deg}"
+            )
+        if self.mass_kg < 0:
+            raise DescriptionError(f"joint.mass_kg must be >= 0, got {self.mass_kg}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SensorRanges:
+    """Declared sensor ranges used for fixed min-max feature scaling."""
+
+    temperature_min_c: float = 0.0
+    temperature_max_c: float = 80.0
+    deflection_max_rad: float = 0.005
+
+    def __post_init__(self) -> None:
+        if not self.temperature_min_c < self.temperature_max_c:
+            raise DescriptionError(
+                "sensors.temperature_min_c must be < temperature_max_c, got "
+                f"{self.temperature_min_c} >= {self.temperature_max_c}"
+            )
+        if not self.deflection_max_rad > 0:
+            raise DescriptionError(
+                f"sensors.deflection_max_rad must be > 0, got {self.deflection_max_rad}"
+            )
+
+
+@dataclass(frozen=True, kw_only=True)
+class RobotDescription:
+    """A serial arm: joints in DH-Hayati form, the J2/J3 coupling and the tool ``T_6_S``."""
+
+    name: str
+    joints: tuple[JointDH, ...]
+    coupling: str = "none"
+    convention: str = "dh_hayati"
+    tool: np.ndarray = field(default_factory=lambda: np.eye(4))
+    sensors: SensorRanges = field(default_factory=SensorRanges)
+
+    def __post_init__(self) -> None:
+        if self.convention != "dh_hayati":
+            raise DescriptionError(f"convention must be 'dh_hayati', got {self.convention!r}")
+        if self.coupling not in COUPLINGS:
+            raise DescriptionError(f"coupling must be one of {COUPLINGS}, got {self.coupling!r}")
+        if self.coupling == "j3_plus_j2" and len(self.joints) < 3:
+            raise DescriptionError("coupling 'j3_plus_j2' needs at least 3 joints")
+        if not self.joints:
+            raise DescriptionError(f"robot {self.name!r} has no joints")
+        tool = np.asarray(self.tool, dtype=float)
+        if tool.shape != (4, 4) or not np.all(np.isfinite(tool)):
+            raise DescriptionError(f"tool must be a finite 4x4 transform, got shape {tool.shape}")
+        object.__setattr__(self, "tool", tool)
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.joints)
+
+    @property
+    def limits_rad(self) -> np.ndarray:
+        """Controller joint limits ``(n, 2)`` in rad (lower, upper)."""
+        return np.deg2rad([[j.lower_deg, j.upper_deg] for j in self.joints])
+
+    def to_dh(self, q_ctrl: np.ndarray) -> np.ndarray:
+        """Controller joint angles ``(..., n)`` -> DH joint variables (coupling applied), rad."""
+        q = np.array(q_ctrl, dtype=float, copy=True)
+        if self.coupling == "j3_plus_j2":
+            q[..., 2] = q[..., 2] + q[..., 1]
+        return q
+
+    def with_tool(self, tool: np.ndarray) -> RobotDescription:
+        """The same robot with another ``T_6_S``."""
+        return replace(self, tool=np.asarray(tool, dtype=float))
+
+
+def load_description(source: str | Path) -> RobotDescription:
+    """A description from a shipped name (``"ur10"``, ``"fanuc_m900ib700"``) or a TOML path."""
+    path = Path(source)
+    if path.suffix != ".toml":
+        shipped = ROBOTS_DIR / f"{source}.toml"
+        if not shipped.exists():
+            names = sorted(p.stem for p in ROBOTS_DIR.glob("*.toml"))
+            raise DescriptionError(f"unknown robot {str(source)!r}; shipped: {', '.join(names)}")
+        path = shipped
+    if not path.exists():
+        raise DescriptionError(f"{path}: robot description not found")
+    try:
+        raw = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise DescriptionError(f"{path}: invalid TOML: {exc}") from None
+    try:
+        return description_from_dict(raw)
+    except DescriptionError as exc:
+        raise DescriptionError(f"{path}: {exc}") from None
+
+
+def description_from_dict(raw: dict) -> RobotDescription:
+    """Build a description from the parsed TOML layout of DESIGN.md."""
+    if "name" not in raw:
+        raise DescriptionError("missing field 'name'")
+    rows = raw.get("joint")
+    if not isinstance(rows, list) or not rows:
+        raise DescriptionError("missing [[joint]] tables")
+    joints = []
+    for i, row in enumerate(rows, start=1):
+        missing = (_JOINT_KEYS - _JOINT_KEYS_OPTIONAL) - row.keys()
+        unknown = row.keys() - _JOINT_KEYS - _JOINT_KEYS_OPTIONAL
+        if missing:
+            raise DescriptionError(f"joint {i}: missing field(s) {', '.join(sorted(missing))}")
+        if unknown:
+            raise DescriptionError(f"joint {i}: unknown field(s) {', '.join(sorted(unknown))}")
+        values = {
+            k: (tuple(float(x) for x in v) if k == "com_m" else float(v)) for k, v in row.items()
+        }
+        if len(values.get("com_m", (0, 0, 0))) != 3:
+            raise DescriptionError(f"joint {i}: com_m must have 3 values")
+        try:
+            joints.append(JointDH(**values))
+        except DescriptionError as exc:
+            raise DescriptionError(f"joint {i}: {exc}") from None
+    tool_raw = raw.get("tool", {})
+    tool = transform_from_xyz_rpy(
+        tool_raw.get("xyz_m", (0.0, 0.0, 0.0)), np.deg2rad(tool_raw.get("rpy_deg", (0.0, 0.0, 0.0)))
+    )
+    return RobotDescription(
+        name=str(raw["name"]),
+        joints=tuple(joints),
+        coupling=str(raw.get("coupling", "none")),
+        convention=str(raw.get("convention", "dh_hayati")),
+        tool=tool,
+        sensors=SensorRanges(**raw.get("sensors", {})),
+    )
+
+
+def description_to_toml(desc: RobotDescription) -> str:
+    """The TOML text that :func:`load_description` reads back into ``desc``."""
+    xyz, rpy = xyz_rpy_from_transform(desc.tool)
+    lines = [
+        f'name = "{desc.name}"',
+        f'convention = "{desc.convention}"',
+        f'coupling = "{desc.coupling}"',
+        "",
+    ]
+    for j in desc.joints:
+        lines += ["[[joint]]"]
+        for key in ("a_m", "d_m", "alpha_deg", "beta_deg", "offset_deg", "lower_deg", "upper_deg"):
+            lines.append(f"{key} = {getattr(j, key)!r}")
+        lines.append(f"mass_kg = {j.mass_kg!r}")
+        lines.append(f"com_m = [{', '.join(repr(float(c)) for c in j.com_m)}]")
+        lines.append("")
+    lines += [
+        "[tool]",
+        f"xyz_m = [{', '.join(repr(float(v)) for v in xyz)}]",
+        f"rpy_deg = [{', '.join(repr(float(v)) for v in np.rad2deg(rpy))}]",
+        "",
+        "[sensors]",
+        f"temperature_min_c = {desc.sensors.temperature_min_c!r}",
+        f"temperature_max_c = {desc.sensors.temperature_max_c!r}",
+        f"deflection_max_rad = {desc.sensors.deflection_max_rad!r}",
+        "",
+    ]
+    return "\n".join(lines)

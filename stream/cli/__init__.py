@@ -1,0 +1,58 @@
+"""The ``robocal`` command line: one entry point, one small class per command.
+
+Each command parses its arguments, calls one library function and prints the result (``--json``
+for a machine-readable result on stdout). Exit 0 on success, 2 on bad input with a one-line
+reason (``--debug`` shows the traceback).
+
+    robocal sim dataset --scenario paper --n 3004 --seed 0 --out data.parquet
+    robocal data summary data.parquet --json
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from kinematics.errors import RobocalError
+from stream.cli._base import CLIUsageError, Command
+from stream.cli.data import COMMANDS as _DATA
+from stream.cli.sim import COMMANDS as _SIM
+
+_COMMANDS: tuple[type[Command], ...] = (*_DATA, *_SIM)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full parser; commands with two words (``data summary``) become nested parsers."""
+    parser = argparse.ArgumentParser(prog="robocal", description=__doc__.splitlines()[0])
+    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    top = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    groups: dict[str, argparse._SubParsersAction] = {}
+    for cls in _COMMANDS:
+        words = cls.name.split()
+        sub = top
+        if len(words) == 2:
+            if words[0] not in groups:
+                group = top.add_parser(words[0], help=f"{words[0]} commands")
+                groups[words[0]] = group.add_subparsers(dest="subcommand", required=True)
+            sub = groups[words[0]]
+        command = cls()
+        p = sub.add_parser(words[-1], help=cls.help, description=cls.help)
+        command.add_arguments(p)
+        p.set_defaults(_command=command)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run one command; errors become one line on stderr and exit code 2."""
+    args = build_parser().parse_args(argv)
+    try:
+        return args._command.take_action(args)
+    except (RobocalError, CLIUsageError) as exc:
+        if args.debug:
+            raise
+        print(f"robocal: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
