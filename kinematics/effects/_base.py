@@ -17,8 +17,10 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from kinematics.description import RobotDescription
+from kinematics.errors import ConfigError
 from kinematics.model import RobotModel
 
 #: Columns of a DH table: a (m), d (m), alpha (rad), beta (rad), offset (rad).
@@ -27,19 +29,51 @@ DH_FIELDS = ("a", "d", "alpha", "beta", "offset")
 
 @dataclass(frozen=True, kw_only=True)
 class Conditions:
-    """What effects may depend on, per point (``N`` points, ``n`` joints; SI units)."""
+    """What effects may depend on, per point (``N`` points, ``n`` joints; SI units).
+
+    ``q`` controller angles (N, n) rad; ``t`` (N,) s; ``temperatures`` (N, k) °C named by
+    ``temperature_names`` (without the ``temp_`` prefix); ``approach`` (N, n) the sign (±1) of
+    each controller joint's last motion before the point; ``payload_kg`` a scalar or (N,) mass
+    at the flange; ``tool_force_n`` (N, 3) an external force at the tool point, base frame.
+    """
 
     q: np.ndarray
     t: np.ndarray
     temperatures: np.ndarray | None = None
     temperature_names: tuple[str, ...] = ()
     approach: np.ndarray | None = None
-    payload_kg: float = 0.0
+    payload_kg: float | np.ndarray = 0.0
     tool_force_n: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        q = np.asarray(self.q)
+        if q.ndim != 2:
+            raise ConfigError(f"conditions.q must be (N, n), got shape {q.shape}")
+        N, n = q.shape
+        expected = {
+            "t": (N,),
+            "temperatures": (N, len(self.temperature_names)),
+            "approach": (N, n),
+            "tool_force_n": (N, 3),
+        }
+        for key, shape in expected.items():
+            value = getattr(self, key)
+            if value is not None and np.shape(value) != shape:
+                raise ConfigError(
+                    f"conditions.{key} must have shape {shape}, got {np.shape(value)}"
+                )
+        if np.ndim(self.payload_kg) not in (0, 1) or np.size(self.payload_kg) not in (1, N):
+            raise ConfigError(
+                f"conditions.payload_kg must be a scalar or ({N},), got {np.shape(self.payload_kg)}"
+            )
 
     @property
     def n_points(self) -> int:
         return int(np.shape(self.q)[0])
+
+    def payload_per_point(self) -> np.ndarray:
+        """The payload (N,) kg, whether given as a scalar or per point."""
+        return np.broadcast_to(np.asarray(self.payload_kg, dtype=float), (self.n_points,))
 
 
 @dataclass(kw_only=True)
@@ -79,7 +113,7 @@ class Effect(abc.ABC):
 
     @abc.abstractmethod
     def parameter_names(self, desc: RobotDescription) -> tuple[str, ...]:
-        """Names (with units, e.g. ``k2_Nm_per_rad``) of this effect's parameters."""
+        """Names (with units, e.g. ``c2_rad_per_Nm``) of this effect's parameters."""
 
     @abc.abstractmethod
     def perturbation(self, model: RobotModel, params: np.ndarray, cond: Conditions) -> Perturbation:
@@ -88,6 +122,54 @@ class Effect(abc.ABC):
     def zero_parameters(self, desc: RobotDescription) -> np.ndarray:
         """Parameters at which the effect is absent (zeros unless a member says otherwise)."""
         return np.zeros(len(self.parameter_names(desc)))
+
+    def options(self) -> dict:
+        """Constructor options that change the effect (JSON-able, for metadata); none by default."""
+        return {}
+
+    def checked(self, desc: RobotDescription, params: np.ndarray) -> np.ndarray:
+        """``params`` as a finite float vector of the right length, else :class:`ConfigError`."""
+        params = np.asarray(params, dtype=float).reshape(-1)
+        expected = len(self.parameter_names(desc))
+        if params.size != expected:
+            raise ConfigError(
+                f"effect {self.name!r}: expected {expected} parameters, got {params.size}"
+            )
+        if not np.all(np.isfinite(params)):
+            raise ConfigError(f"effect {self.name!r}: parameters must be finite, got {params}")
+        return params
+
+
+def coupling_matrix(desc: RobotDescription) -> np.ndarray:
+    """``C = d q_dh / d q_ctrl`` (n, n): controller-joint deltas map to DH deltas as ``C dq``.
+
+    >>> from kinematics.description import load_description
+    >>> coupling_matrix(load_description("fanuc_m900ib700"))[2, :3].tolist()
+    [0.0, 1.0, 1.0]
+    """
+    return desc.to_dh(np.eye(desc.n_joints)).T
+
+
+def ctrl_to_dh_delta(desc: RobotDescription, dq_ctrl: np.ndarray) -> np.ndarray:
+    """Joint-angle deltas on the controller's axes (N, n) -> DH joint deltas (N, n), rad."""
+    return np.asarray(dq_ctrl, dtype=float) @ coupling_matrix(desc).T
+
+
+def dh_to_ctrl_delta(desc: RobotDescription, dq_dh: np.ndarray) -> np.ndarray:
+    """DH joint deltas (N, n) -> deltas on the controller's axes (N, n), rad."""
+    return np.linalg.solve(coupling_matrix(desc), np.asarray(dq_dh, dtype=float).T).T
+
+
+def frame_correction(xyz_m: np.ndarray, rotvec_rad: np.ndarray) -> np.ndarray:
+    """Rigid transforms ``(..., 4, 4)`` from translations (m) and rotation vectors (rad)."""
+    xyz_m = np.asarray(xyz_m, dtype=float)
+    rotvec_rad = np.asarray(rotvec_rad, dtype=float)
+    R = Rotation.from_rotvec(rotvec_rad.reshape(-1, 3)).as_matrix()
+    T = np.zeros((R.shape[0], 4, 4))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = xyz_m.reshape(-1, 3)
+    T[:, 3, 3] = 1.0
+    return T.reshape(rotvec_rad.shape[:-1] + (4, 4))
 
 
 def dh_table(desc: RobotDescription) -> np.ndarray:

@@ -1,0 +1,53 @@
+"""Scenarios by name, with magnitudes drawn from the robot seed and scaled."""
+
+import numpy as np
+import pytest
+
+from kinematics.description import load_description
+from kinematics.effects import EFFECTS
+from kinematics.errors import ConfigError
+from sim_sources.scenarios import SCENARIOS, get_scenario, list_scenarios, true_parameters
+
+FANUC = load_description("fanuc_m900ib700")
+
+
+def test_paper_nominal_and_one_scenario_per_effect():
+    assert {"paper", "nominal", *EFFECTS} == set(SCENARIOS) == set(list_scenarios())
+    assert set(SCENARIOS["paper"].effects) == set(EFFECTS)
+    assert SCENARIOS["nominal"].effects == () and not SCENARIOS["nominal"].noise
+    for name in EFFECTS:
+        assert SCENARIOS[name].effects == (name,)
+
+
+def test_single_effect_robots_share_the_paper_robot():
+    paper = dict((e.name, p) for e, p in get_scenario("paper").build_effects(FANUC))
+    for name in EFFECTS:
+        ((effect, params),) = get_scenario(name).build_effects(FANUC)
+        np.testing.assert_array_equal(params, paper[name])
+
+
+def test_scale_multiplies_every_magnitude():
+    one = true_parameters(get_scenario("paper"), FANUC)
+    half = true_parameters(get_scenario("paper", scale=0.5), FANUC)
+    for name in one:
+        np.testing.assert_allclose(half[name], 0.5 * one[name])
+    assert all(
+        not np.any(p) for p in true_parameters(get_scenario("paper", scale=0.0), FANUC).values()
+    )
+
+
+def test_magnitudes_are_physically_plausible():
+    p = true_parameters(get_scenario("paper"), FANUC)
+    dh = p["geometric"].reshape(6, 5)
+    assert np.abs(dh[:, :2]).max() < 1e-3 and np.abs(dh[:, 2:]).max() < np.deg2rad(0.05)
+    stiffness = 1 / p["joint_compliance"]
+    assert np.all((stiffness >= 1e6) & (stiffness <= 1e8))
+    np.testing.assert_allclose(p["thermal_expansion"], 11.5e-6)
+    assert np.all(p["backlash"] < np.deg2rad(3 / 60))
+
+
+def test_unknown_names_raise_one_line():
+    with pytest.raises(ConfigError, match="unknown scenario 'x'; known: paper"):
+        get_scenario("x")
+    with pytest.raises(ConfigError, match="scale must be >= 0"):
+        get_scenario("paper", scale=-1.0)
