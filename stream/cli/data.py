@@ -1,5 +1,84 @@
-"""CLI commands on datasets: ``import ipa`` and ``data summary``."""
+"""CLI commands on datasets: ``import ipa`` and ``data summary``.
 
-from stream.cli._base import Command
+robocal import ipa ../shared/data/ur10-ipa/Series_B --out ur10_b.parquet
+robocal data summary ur10_b.parquet --hist errors.png --json
+"""
 
-COMMANDS: tuple[type[Command], ...] = ()
+from __future__ import annotations
+
+import argparse
+import sys
+
+from tqdm import tqdm
+
+from kinematics.accuracy import summarize_file
+from kinematics.importers.ipa import import_series
+from stream.cli._base import Command, add_json_flag, emit
+
+
+class ImportIpa(Command):
+    name = "import ipa"
+    help = "import a UR10 laser-tracker series folder (ur10-ipa layout) into the dataset format"
+
+    def add_arguments(self, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("folder", help="series folder, e.g. ../shared/data/ur10-ipa/Series_B")
+        parser.add_argument("--out", required=True, help="dataset file to write (.parquet/.csv)")
+        parser.add_argument("--robot", default="ur10", help="robot description (name or TOML)")
+        add_json_flag(parser)
+
+    def take_action(self, args: argparse.Namespace) -> int:
+        with tqdm(total=4, desc="import ipa", unit="stage", file=sys.stderr) as bar:
+
+            def stage_done(stage: str) -> None:
+                bar.set_postfix_str(stage, refresh=False)
+                bar.update()
+
+            result = import_series(args.folder, robot=args.robot, out=args.out, progress=stage_done)
+        fit = result.fit.summary()
+        meta = result.dataset.meta
+        payload = {
+            "series": result.series,
+            "out": str(result.path),
+            "n": len(result.dataset),
+            "robot": meta.robot,
+            "frame": meta.frame,
+            "time_source": meta.extra["time_source"],
+            "T_W_0": meta.T_W_0,
+            "T_6_S": meta.T_6_S,
+            "noise_floor_m": meta.noise_floor_m,
+            "fit_mean_mm": fit.mean_mm,
+            "fit_max_mm": fit.max_mm,
+            "fit_mean_arcmin": fit.mean_arcmin,
+        }
+        text = (
+            f"{result.series}: {len(result.dataset)} points -> {result.path}\n"
+            f"frames fit residual: mean {fit.mean_mm:.3f} mm, max {fit.max_mm:.3f} mm, "
+            f"mean {fit.mean_arcmin:.2f} arcmin; time from {meta.extra['time_source']}"
+        )
+        emit(payload, args.json, text)
+        return 0
+
+
+class DataSummary(Command):
+    name = "data summary"
+    help = "uncalibrated absolute accuracy of a dataset against its nominal robot model"
+
+    def add_arguments(self, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("file", help="dataset file (.parquet or .csv with .meta.json)")
+        parser.add_argument("--robot", default=None, help="robot description (default: meta)")
+        parser.add_argument("--hist", default=None, help="write a PNG histogram of errors here")
+        add_json_flag(parser)
+
+    def take_action(self, args: argparse.Namespace) -> int:
+        s = summarize_file(args.file, robot=args.robot, histogram=args.hist)
+        text = (
+            f"{args.file}: N = {s.n}\n"
+            f"position error  mean {s.mean_mm:.3f} mm, std {s.std_mm:.3f}, "
+            f"p95 {s.p95_mm:.3f}, max {s.max_mm:.3f} mm\n"
+            f"orientation error  mean {s.mean_arcmin:.2f} arcmin, max {s.max_arcmin:.2f} arcmin"
+        )
+        emit(s.to_dict(), args.json, text)
+        return 0
+
+
+COMMANDS: tuple[type[Command], ...] = (ImportIpa, DataSummary)

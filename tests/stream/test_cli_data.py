@@ -1,0 +1,97 @@
+"""``robocal import ipa`` and ``robocal data summary``, run in-process through ``main``."""
+
+import json
+import re
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from kinematics.dataset import Dataset, DatasetMeta, meta_path, write_dataset
+from kinematics.description import load_description
+from kinematics.model import RobotModel
+from kinematics.transforms import xyz_quat_from_transform
+from stream.cli import main
+
+KEYS = {"n", "mean_mm", "std_mm", "max_mm", "p95_mm", "mean_arcmin", "max_arcmin"}
+
+
+@pytest.fixture
+def dataset_csv(tmp_path):
+    """A 30-point UR10 dataset in the base frame, every point 2 mm off along z."""
+    q = np.random.default_rng(0).uniform(-2.0, 2.0, (30, 6))
+    T = RobotModel(load_description("ur10")).fk(q)
+    T[:, 2, 3] += 2e-3
+    xyz, quat = xyz_quat_from_transform(T)
+    table = pd.DataFrame({"t": np.arange(30.0)})
+    for i in range(6):
+        table[f"q{i + 1}"] = q[:, i]
+    for i, c in enumerate(("x", "y", "z", "qx", "qy", "qz", "qw")):
+        table[c] = np.concatenate([xyz, quat], axis=1)[:, i]
+    return write_dataset(Dataset(table, DatasetMeta(robot="ur10")), tmp_path / "d.csv")
+
+
+def test_summary_json(dataset_csv, tmp_path, capsys):
+    hist = tmp_path / "h.png"
+    assert main(["data", "summary", str(dataset_csv), "--json", "--hist", str(hist)]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert set(result) == KEYS and result["n"] == 30
+    assert result["mean_mm"] == pytest.approx(2.0, abs=1e-9)
+    assert result["max_arcmin"] == pytest.approx(0.0, abs=1e-3)
+    assert hist.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_summary_text(dataset_csv, capsys):
+    assert main(["data", "summary", str(dataset_csv), "--robot", "ur10"]) == 0
+    assert "mean 2.000 mm" in capsys.readouterr().out
+
+
+def joint_too_far(table: pd.DataFrame) -> pd.DataFrame:
+    table.loc[4, "q2"] = 7.0
+    return table
+
+
+@pytest.mark.parametrize(
+    "edit, args, message",
+    [
+        (None, ["--robot", "nope"], "unknown robot 'nope'"),
+        (lambda t: t.drop(columns=["qw"]), [], r"missing column\(s\) qw"),
+        (lambda t: t.assign(z=np.nan), [], "row 0, column 'z': value is not a finite"),
+        (joint_too_far, [], "row 4, column 'q2': 401.070 deg"),
+    ],
+)
+def test_summary_bad_input_exits_2(dataset_csv, capsys, edit, args, message):
+    if edit is not None:
+        edit(pd.read_csv(dataset_csv)).to_csv(dataset_csv, index=False)
+    assert main(["data", "summary", str(dataset_csv), *args]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("robocal: error: ")
+    assert re.search(message, err)
+
+
+def test_summary_missing_file_and_meta(dataset_csv, tmp_path, capsys):
+    assert main(["data", "summary", str(tmp_path / "none.parquet")]) == 2
+    assert "no such dataset file" in capsys.readouterr().err
+    meta_path(dataset_csv).unlink()
+    assert main(["data", "summary", str(dataset_csv)]) == 2
+    assert "no metadata" in capsys.readouterr().err
+
+
+def test_import_missing_folder_exits_2(tmp_path, capsys):
+    assert main(["import", "ipa", str(tmp_path / "nope"), "--out", str(tmp_path / "o.csv")]) == 2
+    assert "no such series folder" in capsys.readouterr().err
+
+
+@pytest.mark.shared_data
+def test_import_then_summarise_series_b(shared_data, tmp_path, capsys):
+    out = tmp_path / "b.parquet"
+    folder = shared_data / "ur10-ipa" / "Series_B"
+    assert main(["import", "ipa", str(folder), "--out", str(out), "--json"]) == 0
+    imported = json.loads(capsys.readouterr().out)
+    assert imported["n"] == 1495 and imported["time_source"] == "row_order"
+    assert np.asarray(imported["T_W_0"]).shape == (4, 4)
+    assert main(["data", "summary", str(out), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    # With frames identified from the data, the summary equals the fit residual.
+    assert summary["mean_mm"] == pytest.approx(imported["fit_mean_mm"], rel=1e-9)
+    assert 0.5 < summary["mean_mm"] < 1.5
