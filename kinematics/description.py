@@ -121,8 +121,16 @@ class RobotDescription:
 
 
 def load_description(source: str | Path) -> RobotDescription:
-    """A description from a shipped name (``"ur10"``, ``"fanuc_m900ib700"``) or a TOML path."""
+    """A description from a shipped name (``"ur10"``), a TOML path or a URDF path.
+
+    A TOML file may instead point at a URDF (``urdf = "arm.urdf"``, relative to the TOML file,
+    with an optional ``tip_link``, ``coupling`` and ``[sensors]``).
+    """
     path = Path(source)
+    if path.suffix == ".urdf":
+        from kinematics.urdf import description_from_urdf  # urdf.py builds on this module
+
+        return description_from_urdf(path)
     if path.suffix != ".toml":
         shipped = ROBOTS_DIR / f"{source}.toml"
         if not shipped.exists():
@@ -136,9 +144,25 @@ def load_description(source: str | Path) -> RobotDescription:
     except tomllib.TOMLDecodeError as exc:
         raise DescriptionError(f"{path}: invalid TOML: {exc}") from None
     try:
+        if "urdf" in raw:
+            return _description_from_urdf_entry(path, raw)
         return description_from_dict(raw)
     except DescriptionError as exc:
         raise DescriptionError(f"{path}: {exc}") from None
+
+
+def _description_from_urdf_entry(path: Path, raw: dict) -> RobotDescription:
+    """A TOML entry that names a URDF, with the TOML's coupling and sensor ranges on top."""
+    from kinematics.urdf import description_from_urdf  # urdf.py builds on this module
+
+    desc = description_from_urdf(
+        path.parent / raw["urdf"], raw.get("tip_link"), name=raw.get("name")
+    )
+    return replace(
+        desc,
+        coupling=str(raw.get("coupling", "none")),
+        sensors=SensorRanges(**raw.get("sensors", {})),
+    )
 
 
 def description_from_dict(raw: dict) -> RobotDescription:

@@ -101,15 +101,18 @@ def _chain(model: pin.Model, tip_link: str, path: Path) -> tuple[list[int], int]
 
 
 def description_from_urdf(
-    path: str | Path, tip_link: str, *, name: str | None = None
+    path: str | Path, tip_link: str | None = None, *, name: str | None = None
 ) -> RobotDescription:
     """The DH description of the serial chain from the URDF root to ``tip_link``.
 
     Joint 1's axis must be the root frame's +z axis through its origin (the DH base); the
     description's tool is ``T_n_tip``, identity when the tip link is itself a DH frame.
+    Without ``tip_link`` the last link of the file is the tip.
     """
     path = Path(path)
     model = _load(path)
+    if tip_link is None:
+        tip_link = [f.name for f in model.frames if f.type == pin.FrameType.BODY][-1]
     joints, fid = _chain(model, tip_link, path)
     data = model.createData()
     q0 = pin.neutral(model)

@@ -155,3 +155,18 @@ def test_prismatic_and_tilted_first_joint_are_refused(write):
     tilted = ros_urdf().replace('<axis xyz="0 0 1"/>', '<axis xyz="1 0 0"/>', 1)
     with pytest.raises(DescriptionError, match="joint 1 .* must turn about the root's \\+z axis"):
         description_from_urdf(write(tilted), "tool0")
+
+
+def test_load_description_reads_urdf_directly_and_through_toml(write, tmp_path):
+    urdf = write(dh_urdf())
+    q = random_q(100, seed=7)
+    direct = load_description(urdf)
+    np.testing.assert_allclose(RobotModel(direct).fk(q), RobotModel(UR10).fk(q), atol=1e-9)
+    toml = tmp_path / "cell_robot.toml"
+    toml.write_text(
+        'name = "ur10_cell"\nurdf = "robot.urdf"\ntip_link = "tool0"\n'
+        "[sensors]\ntemperature_max_c = 45.0\n"
+    )
+    via_toml = load_description(toml)
+    assert via_toml.name == "ur10_cell" and via_toml.sensors.temperature_max_c == 45.0
+    np.testing.assert_allclose(RobotModel(via_toml).fk(q), RobotModel(UR10).fk(q), atol=1e-9)
