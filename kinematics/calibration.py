@@ -1,0 +1,300 @@
+"""Classical geometric calibration: DH-Hayati deviations with ``T_W_0`` and ``T_6_S``.
+
+The deviations of every DH-Hayati parameter (a, d, alpha, beta, offset per joint) and small
+corrections of the base and tool frames are identified by nonlinear least squares
+(:func:`scipy.optimize.least_squares`) from measured probe poses. Only identifiable parameters
+are estimated: QR with column pivoting of the column-scaled identification Jacobian at the
+nominal drops those whose columns are (near) linear combinations of others (``d1`` with the
+base ``z``, offsets with base/tool rotations, ...). The same least-squares machinery
+(:func:`fit_effects`) refits any list of effects; the discrepancy workflow uses it.
+
+>>> from kinematics.description import load_description
+>>> names = calibration_parameter_names(load_description("ur10"))
+>>> len(names), names[0], names[-1]
+(42, 'a1_m', 'tool_rz_rad')
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.linalg import qr
+from scipy.spatial.transform import Rotation
+from threadpoolctl import threadpool_limits
+
+from kinematics.dataset import Dataset
+from kinematics.description import RobotDescription
+from kinematics.effects._base import DH_FIELDS, Conditions, Effect, Perturbation
+from kinematics.errors import ConfigError, IdentifiabilityError
+from kinematics.gap.conditions import Observations, cell_description, observations_from_dataset
+from kinematics.gap.fitting import fit_effects, jacobian
+from kinematics.model import RobotModel
+from kinematics.transforms import rotation_angle, transform
+
+_DH_UNITS = ("m", "m", "rad", "rad", "rad")
+FRAME_FIELDS = ("x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad")
+
+
+@dataclass(frozen=True, kw_only=True)
+class CalibrationConfig:
+    """Settings of the geometric calibration.
+
+    ``rank_rtol``: a parameter is dropped when its pivoted-QR diagonal, relative to the
+    largest, is below this (unit-norm columns). ``min_points_per_parameter``: the least number
+    of measured points per identified parameter. ``min_joint_range_deg``: every joint must move
+    at least this much, or its parameters would be folded into others only for that angle.
+    """
+
+    rank_rtol: float = 1e-4
+    min_points_per_parameter: float = 1.0
+    min_joint_range_deg: float = 1.0
+    max_nfev: int = 50
+
+    def __post_init__(self) -> None:
+        if not 0 < self.rank_rtol < 1:
+            raise ConfigError(f"calibration.rank_rtol must be in (0, 1), got {self.rank_rtol}")
+        if self.min_points_per_parameter <= 0:
+            raise ConfigError(
+                "calibration.min_points_per_parameter must be > 0, got "
+                f"{self.min_points_per_parameter}"
+            )
+        if self.min_joint_range_deg < 0:
+            raise ConfigError(
+                f"calibration.min_joint_range_deg must be >= 0, got {self.min_joint_range_deg}"
+            )
+        if self.max_nfev < 1:
+            raise ConfigError(f"calibration.max_nfev must be >= 1, got {self.max_nfev}")
+
+
+def calibration_parameter_names(desc: RobotDescription) -> tuple[str, ...]:
+    """All candidate parameters: DH deviations per joint, then base and tool corrections."""
+    dh = [
+        f"{field}{i}_{unit}"
+        for i in range(1, desc.n_joints + 1)
+        for field, unit in zip(DH_FIELDS, _DH_UNITS, strict=True)
+    ]
+    return (*dh, *(f"base_{f}" for f in FRAME_FIELDS), *(f"tool_{f}" for f in FRAME_FIELDS))
+
+
+def frame_correction(xi: np.ndarray) -> np.ndarray:
+    """The transform of a translation (m) + rotation vector (rad) ``xi`` (6,)."""
+    xi = np.asarray(xi, dtype=float)
+    return transform(Rotation.from_rotvec(xi[3:]).as_matrix(), xi[:3])
+
+
+class GeometricFrames(Effect):
+    """DH deviations plus base/tool corrections, restricted to the ``free`` parameter indices."""
+
+    name = "geometric_frames"
+
+    def __init__(self, desc: RobotDescription, free: tuple[int, ...] | None = None) -> None:
+        self._all = calibration_parameter_names(desc)
+        self.free = tuple(range(len(self._all))) if free is None else tuple(free)
+
+    def parameter_names(self, desc: RobotDescription) -> tuple[str, ...]:
+        return tuple(self._all[i] for i in self.free)
+
+    def full(self, params: np.ndarray) -> np.ndarray:
+        """The full parameter vector (every candidate; dropped ones zero)."""
+        x = np.zeros(len(self._all))
+        x[list(self.free)] = params
+        return x
+
+    def perturbation(self, model: RobotModel, params: np.ndarray, cond: Conditions) -> Perturbation:
+        n = model.description.n_joints
+        x = self.full(params)
+        out = Perturbation.zero(cond.n_points, n)
+        out.ddh[:] = x[: 5 * n].reshape(n, 5)
+        out.base[:] = frame_correction(x[5 * n : 5 * n + 6])
+        out.tool[:] = frame_correction(x[5 * n + 6 :])
+        return out
+
+
+@dataclass(frozen=True, kw_only=True)
+class ResidualStats:
+    """Position (mm) and orientation (arcmin) residual statistics of ``n`` points."""
+
+    n: int
+    mean_mm: float
+    rms_mm: float
+    std_mm: float
+    max_mm: float
+    mean_arcmin: float
+    max_arcmin: float
+
+    def to_dict(self) -> dict[str, float]:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+def residual_stats(T_measured: np.ndarray, T_predicted: np.ndarray) -> ResidualStats:
+    """Statistics of measured vs predicted poses ``(N, 4, 4)``."""
+    d = np.linalg.norm(T_measured[:, :3, 3] - T_predicted[:, :3, 3], axis=1) * 1e3
+    R = np.einsum("nij,nkj->nik", T_measured[:, :3, :3], T_predicted[:, :3, :3])
+    ang = np.rad2deg(rotation_angle(R)) * 60.0
+    return ResidualStats(
+        n=len(d),
+        mean_mm=float(d.mean()),
+        rms_mm=float(np.sqrt(np.mean(d**2))),
+        std_mm=float(d.std()),
+        max_mm=float(d.max()),
+        mean_arcmin=float(ang.mean()),
+        max_arcmin=float(ang.max()),
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
+class Identifiability:
+    """Which parameters the poses determine: kept/dropped names, condition number."""
+
+    kept: tuple[str, ...]
+    dropped: tuple[str, ...]
+    kept_index: tuple[int, ...]
+    condition_number: float
+
+
+def identifiable(J: np.ndarray, names: tuple[str, ...], rank_rtol: float) -> Identifiability:
+    """Select independent columns of ``J`` by QR with column pivoting on unit-norm columns.
+
+    >>> J = np.array([[1.0, 2.0, 0.0], [0.0, 0.0, 1.0], [1.0, 2.0, 1.0]])
+    >>> identifiable(J, ("a", "b", "c"), 1e-6).dropped
+    ('b',)
+    """
+    norms = np.linalg.norm(J, axis=0)
+    live = np.flatnonzero(norms > 0)
+    _, R, piv = qr(J[:, live] / norms[live], mode="economic", pivoting=True)
+    diag = np.abs(np.diag(R))
+    rank = int(np.sum(diag > rank_rtol * diag[0])) if diag.size else 0
+    kept_idx = tuple(sorted(int(live[p]) for p in piv[:rank]))
+    sv = np.linalg.svd(J[:, kept_idx] / norms[list(kept_idx)], compute_uv=False)
+    return Identifiability(
+        kept=tuple(names[i] for i in kept_idx),
+        dropped=tuple(n for i, n in enumerate(names) if i not in kept_idx),
+        kept_index=kept_idx,
+        condition_number=float(sv[0] / sv[-1]) if sv.size else float("inf"),
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
+class CalibrationResult:
+    """A calibrated description (tool = identified ``T_6_S``), ``T_W_0`` and the evidence."""
+
+    description: RobotDescription
+    T_W_0: np.ndarray
+    identifiability: Identifiability
+    values: dict[str, float]
+    std: dict[str, float]
+    residual: ResidualStats
+    rotation_weight_m: float
+    rss: float
+    dof: int
+
+    def to_dict(self) -> dict:
+        """A JSON-ready summary (parameters in SI, residuals in mm / arcmin)."""
+        return {
+            "kept": list(self.identifiability.kept),
+            "dropped": list(self.identifiability.dropped),
+            "condition_number": self.identifiability.condition_number,
+            "parameters": self.values,
+            "std": self.std,
+            "residual": self.residual.to_dict(),
+            "T_W_0": self.T_W_0.tolist(),
+        }
+
+
+def calibrate(
+    desc: RobotDescription, ds: Dataset, config: CalibrationConfig | None = None
+) -> CalibrationResult:
+    """Identify the identifiable DH deviations and frame corrections from ``ds``.
+
+    Raises :class:`IdentifiabilityError` when there are too few points for the parameters
+    the poses excite. Linear algebra runs single-threaded (thin matrices; threaded BLAS on a
+    busy machine is many times slower).
+    """
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _calibrate(desc, ds, config or CalibrationConfig())
+
+
+def identify(model: RobotModel, obs: Observations, config: CalibrationConfig) -> Identifiability:
+    """The identifiable calibration parameters at the nominal, after checking that every joint
+    moves and that there are enough points; else :class:`IdentifiabilityError`."""
+    desc = model.description
+    span = np.rad2deg(np.ptp(np.asarray(obs.cond.q), axis=0)) if obs.n_points else np.zeros(1)
+    still = np.flatnonzero(span < config.min_joint_range_deg)
+    if still.size:
+        raise IdentifiabilityError(
+            f"joint {still[0] + 1} moves over {span[still[0]]:.3g} deg in the data, calibration "
+            f"needs at least {config.min_joint_range_deg} deg on every joint"
+        )
+    full = GeometricFrames(desc)
+    names = full.parameter_names(desc)
+    J0 = jacobian(model, obs, [(full, np.zeros(len(names)))], 1.0)
+    ident = identifiable(J0, names, config.rank_rtol)
+    need = int(np.ceil(config.min_points_per_parameter * len(ident.kept)))
+    if obs.n_points < max(need, 2):
+        raise IdentifiabilityError(
+            f"calibration needs at least {need} points for {len(ident.kept)} identifiable "
+            f"parameters, got {obs.n_points}"
+        )
+    return ident
+
+
+def _calibrate(desc: RobotDescription, ds: Dataset, config: CalibrationConfig) -> CalibrationResult:
+    desc = cell_description(desc, ds)
+    model = RobotModel(desc)
+    obs = observations_from_dataset(ds, desc)
+    ident = identify(model, obs, config)
+    effect = GeometricFrames(desc, ident.kept_index)
+    fit = fit_effects(model, obs, [(effect, np.zeros(len(ident.kept)))], max_nfev=config.max_nfev)
+    values = effect.full(fit.params[0])
+    calibrated, T_W_0 = apply_calibration(desc, obs.T_W_0, values)
+    predicted = T_W_0[None] @ RobotModel(calibrated).fk(obs.cond.q)
+    return CalibrationResult(
+        description=calibrated,
+        T_W_0=T_W_0,
+        identifiability=ident,
+        values=dict(zip(ident.kept, map(float, fit.params[0]), strict=True)),
+        std=dict(zip(ident.kept, map(float, fit.std[0]), strict=True)),
+        residual=residual_stats(obs.T_measured, predicted),
+        rotation_weight_m=fit.rotation_weight_m,
+        rss=fit.rss,
+        dof=fit.dof,
+    )
+
+
+def apply_calibration(
+    desc: RobotDescription, T_W_0: np.ndarray, values: np.ndarray
+) -> tuple[RobotDescription, np.ndarray]:
+    """Fold full calibration parameters into a description and a base frame ``T_W_0``."""
+    n = desc.n_joints
+    dh = values[: 5 * n].reshape(n, 5)
+    joints = tuple(
+        replace(
+            j,
+            a_m=float(j.a_m + dh[i, 0]),
+            d_m=float(j.d_m + dh[i, 1]),
+            alpha_deg=j.alpha_deg + float(np.rad2deg(dh[i, 2])),
+            beta_deg=j.beta_deg + float(np.rad2deg(dh[i, 3])),
+            offset_deg=j.offset_deg + float(np.rad2deg(dh[i, 4])),
+        )
+        for i, j in enumerate(desc.joints)
+    )
+    tool = desc.tool @ frame_correction(values[5 * n + 6 :])
+    base = np.asarray(T_W_0, dtype=float) @ frame_correction(values[5 * n : 5 * n + 6])
+    return replace(desc, joints=joints, tool=tool), base
+
+
+__all__ = [
+    "CalibrationConfig",
+    "CalibrationResult",
+    "GeometricFrames",
+    "Identifiability",
+    "ResidualStats",
+    "apply_calibration",
+    "calibrate",
+    "calibration_parameter_names",
+    "frame_correction",
+    "identifiable",
+    "identify",
+    "residual_stats",
+]
