@@ -1,0 +1,206 @@
+"""Zenoh sessions from a frozen config, queue-fed workers and liveliness tokens.
+
+By default a session is an embedded peer (no router needed on one machine); ``mode="client"``
+with ``connect`` endpoints talks through routers (deploy/zenohd.json5). Zenoh callbacks only
+put ``Received`` items on a queue: a worker thread does the work, so a callback never blocks
+the Zenoh runtime and never calls back into Zenoh.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import socket
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import zenoh
+
+from kinematics.errors import ConfigError
+
+MODES = ("peer", "client", "router")
+
+
+@dataclass(frozen=True, kw_only=True)
+class BusConfig:
+    """How to join the bus: mode, listen/connect endpoints (``tcp/host:port``), scouting."""
+
+    mode: str = "peer"
+    listen: tuple[str, ...] = ()
+    connect: tuple[str, ...] = ()
+    multicast_scouting: bool = True
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ConfigError(f"bus.mode must be one of {MODES}, got {self.mode!r}")
+        for ep in (*self.listen, *self.connect):
+            if "/" not in ep:
+                raise ConfigError(f"bus endpoint must look like tcp/127.0.0.1:7447, got {ep!r}")
+        if self.mode == "client" and not self.connect and not self.multicast_scouting:
+            raise ConfigError("bus.mode 'client' needs connect endpoints or multicast scouting")
+
+    @classmethod
+    def loopback(cls, port: int, listen: bool) -> BusConfig:
+        """A test/demo config on ``tcp/127.0.0.1:<port>`` with scouting off."""
+        ep = (f"tcp/127.0.0.1:{port}",)
+        return cls(
+            listen=ep if listen else (), connect=() if listen else ep, multicast_scouting=False
+        )
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that is free right now."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def open_session(cfg: BusConfig) -> zenoh.Session:
+    """Open a Zenoh session configured by ``cfg``."""
+    zc = zenoh.Config()
+    zc.insert_json5("mode", json.dumps(cfg.mode))
+    zc.insert_json5("scouting/multicast/enabled", json.dumps(cfg.multicast_scouting))
+    if cfg.listen:
+        zc.insert_json5("listen/endpoints", json.dumps(list(cfg.listen)))
+    if cfg.connect:
+        zc.insert_json5("connect/endpoints", json.dumps(list(cfg.connect)))
+    try:
+        return zenoh.open(zc)
+    except zenoh.ZError as exc:
+        raise ConfigError(f"cannot open Zenoh session ({cfg}): {exc}") from None
+
+
+def publisher(session: zenoh.Session, key_expr: str) -> zenoh.Publisher:
+    """A reliable publisher that blocks rather than drops when the network is congested."""
+    return session.declare_publisher(
+        key_expr,
+        congestion_control=zenoh.CongestionControl.BLOCK,
+        reliability=zenoh.Reliability.RELIABLE,
+    )
+
+
+@dataclass(frozen=True)
+class Received:
+    """One sample as a worker sees it: key, payload, attachment and receive time (s, epoch)."""
+
+    key: str
+    payload: bytes
+    attachment: bytes | None
+    received_t: float
+
+
+def _to_received(sample: zenoh.Sample) -> Received:
+    att = sample.attachment
+    return Received(
+        str(sample.key_expr),
+        sample.payload.to_bytes(),
+        None if att is None else att.to_bytes(),
+        time.time(),
+    )
+
+
+@dataclass(frozen=True)
+class _Call:
+    fn: Callable[[], None]
+    done: threading.Event
+
+
+class Worker:
+    """A thread that calls ``handle(item)`` for each queued item; ``stop()`` drains and joins.
+
+    ``idle(now)`` is called at least every ``tick_s`` (periodic work: flush, diagnostics).
+    """
+
+    def __init__(
+        self,
+        name: str,
+        handle: Callable[[Received], None],
+        idle: Callable[[float], None] | None = None,
+        tick_s: float = 0.2,
+    ) -> None:
+        self.queue: queue.Queue[Received | None] = queue.Queue()
+        self._handle = handle
+        self._idle = idle
+        self._tick = tick_s
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
+        self._thread.start()
+
+    def callback(self, sample: zenoh.Sample) -> None:
+        """The Zenoh subscriber callback: enqueue only."""
+        self.queue.put(_to_received(sample))
+
+    def _loop(self) -> None:
+        next_idle = time.monotonic() + self._tick
+        while True:
+            try:
+                item = self.queue.get(timeout=self._tick)
+            except queue.Empty:
+                item = ...
+            try:
+                if item is None:
+                    break
+                if isinstance(item, _Call):
+                    try:
+                        item.fn()
+                    finally:
+                        item.done.set()
+                elif item is not ...:
+                    self._handle(item)
+                if self._idle is not None and time.monotonic() >= next_idle:
+                    next_idle = time.monotonic() + self._tick
+                    self._idle(time.time())
+            except Exception as exc:  # kept for the owner to re-raise; the thread ends
+                self.error = exc
+                raise
+            finally:
+                if item is not ...:
+                    self.queue.task_done()
+
+    def call(self, fn: Callable[[], None], timeout_s: float = 60.0) -> None:
+        """Run ``fn`` on the worker thread after what is queued; wait for it."""
+        call = _Call(fn, threading.Event())
+        self.queue.put(call)
+        if not call.done.wait(timeout_s) and self.error is None:
+            raise TimeoutError(f"worker did not run the call within {timeout_s} s")
+        if self.error is not None:
+            raise self.error
+
+    def drain(self, timeout_s: float = 30.0) -> bool:
+        """Wait until every enqueued item is handled; False on timeout."""
+        deadline = time.monotonic() + timeout_s
+        while self.queue.unfinished_tasks and time.monotonic() < deadline:
+            if self.error is not None:
+                raise self.error
+            time.sleep(0.005)
+        return not self.queue.unfinished_tasks
+
+    def stop(self, timeout_s: float = 30.0) -> None:
+        """Handle what is queued, then end the thread."""
+        self.queue.put(None)
+        self._thread.join(timeout_s)
+
+
+def subscribe(session: zenoh.Session, key_expr: str, worker: Worker) -> zenoh.Subscriber:
+    """Subscribe ``worker`` to ``key_expr`` (samples land on its queue)."""
+    return session.declare_subscriber(key_expr, worker.callback)
+
+
+def liveliness_key(cell: str, robot: str, stage: str) -> str:
+    return f"robocal/{cell}/{robot}/alive/{stage}"
+
+
+def declare_alive(session: zenoh.Session, cell: str, robot: str, stage: str):
+    """A liveliness token that tells others this stage is up (dropped when it ends)."""
+    return session.liveliness().declare_token(liveliness_key(cell, robot, stage))
+
+
+def alive_stages(session: zenoh.Session, cell: str = "*", timeout_s: float = 1.0) -> list[str]:
+    """Keys of the live stage tokens under ``robocal/<cell>/**``."""
+    out = []
+    for reply in session.liveliness().get(f"robocal/{cell}/*/alive/*", timeout=timeout_s):
+        if reply.ok is not None:
+            out.append(str(reply.ok.key_expr))
+    return sorted(out)

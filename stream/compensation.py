@@ -1,0 +1,204 @@
+"""Compensation maths (pure): the predicted pose error at a command and the corrected command.
+
+The corrected command ``q_c`` solves ``apply_error(FK(q_c), e(q_c)) = T*``: the pose the
+nominal model plus the learned error predicts lands on the target ``T*``. It is found by
+Levenberg-Marquardt steps ``q <- q + J^T (J J^T + d^2 I)^-1 pose_error(T*, predicted(q))``
+with the pinocchio tool Jacobian (DH joint variables, mapped to controller angles through the
+J2/J3 coupling); the damping ``d`` grows when a step does not help, which keeps corrections
+small near singular poses.
+An answer is marked untrusted when the epistemic standard deviation of a position component
+exceeds ``epistemic_limit_mm``: the model has not seen data like this.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from kinematics.errors import ConfigError
+from kinematics.model import RobotModel
+from kinematics.transforms import apply_error, pose_error, transform_from_xyz_quat
+from learner.model import ErrorModel
+from stream.messages import JOINT_LIMIT_RAD, RejectedMessageError, check_finite
+
+
+@dataclass(frozen=True, kw_only=True)
+class CompensationConfig:
+    """Trust limit (mm), interval level, and the corrected-command iteration: limits, the
+    initial damping ``d`` and the largest joint step per iteration (rad)."""
+
+    epistemic_limit_mm: float = 0.5
+    level: float = 0.9
+    max_iterations: int = 20
+    tolerance_m: float = 1e-7
+    damping: float = 1e-6
+    max_step_rad: float = 0.01
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.epistemic_limit_mm) and self.epistemic_limit_mm > 0):
+            raise ConfigError(
+                f"compensation.epistemic_limit_mm must be > 0, got {self.epistemic_limit_mm}"
+            )
+        if not 0 < self.level < 1:
+            raise ConfigError(f"compensation.level must be in (0, 1), got {self.level}")
+        if not (self.damping >= 0 and self.max_step_rad > 0):
+            raise ConfigError(
+                f"compensation.damping must be >= 0 and max_step_rad > 0, got {self.damping}, "
+                f"{self.max_step_rad}"
+            )
+        if self.max_iterations < 1:
+            raise ConfigError(
+                f"compensation.max_iterations must be >= 1, got {self.max_iterations}"
+            )
+
+
+@dataclass(frozen=True, kw_only=True)
+class CompensationRequest:
+    """Joint angles ``q`` (rad) to compensate, or a base-frame ``target`` pose (m, xyzw) with a
+    seed ``q``; optional temperatures (°C, by name) and deflections (rad) as features."""
+
+    SCHEMA: ClassVar[str] = "robocal.compensate.request"
+    q: tuple[float, ...]
+    target_xyz: tuple[float, float, float] | None = None
+    target_quat: tuple[float, float, float, float] | None = None
+    temperatures: Mapping[str, float] | None = None
+    deflection: tuple[float, ...] | None = None
+
+    def check(self) -> None:
+        check_finite("q", self.q, JOINT_LIMIT_RAD)
+        if (self.target_xyz is None) != (self.target_quat is None):
+            raise RejectedMessageError("malformed", "target needs both target_xyz and target_quat")
+        if self.target_xyz is not None:
+            check_finite("target_xyz", self.target_xyz, 100.0, length=3)
+            check_finite("target_quat", self.target_quat, 1.001, length=4)
+        if self.deflection is not None:
+            check_finite("deflection", self.deflection, 1.0, length=len(self.q))
+        if self.temperatures is not None:
+            if not isinstance(self.temperatures, dict):
+                raise RejectedMessageError("malformed", "temperatures must map names to °C")
+            check_finite("temperatures", tuple(self.temperatures.values()), 150.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class CompensationReply:
+    """Predicted error at the command (m, rad), its interval and variances, the corrected
+    command (rad), the iteration count and remaining residual (m), and trust."""
+
+    SCHEMA: ClassVar[str] = "robocal.compensate.reply"
+    model_version: int
+    error: tuple[float, ...]
+    lo: tuple[float, ...]
+    hi: tuple[float, ...]
+    level: float
+    aleatoric: tuple[float, ...]
+    epistemic: tuple[float, ...]
+    q_corrected: tuple[float, ...]
+    iterations: int
+    residual_m: float
+    trusted: bool
+    reason: str = ""
+
+    def check(self) -> None:
+        return None
+
+
+def features_at(
+    names: tuple[str, ...],
+    q: np.ndarray,
+    deflection: np.ndarray | None,
+    temperatures: Mapping[str, float] | None,
+) -> np.ndarray:
+    """Raw features ``(1, F)`` in ``names`` order for one command (no deflection -> zero)."""
+    temps = {
+        (k if k.startswith("temp_") else f"temp_{k}"): v for k, v in (temperatures or {}).items()
+    }
+    row = []
+    for name in names:
+        if name.startswith("dtheta"):
+            row.append(0.0 if deflection is None else float(deflection[int(name[6:]) - 1]))
+        elif name.startswith("temp_"):
+            if name not in temps:
+                raise RejectedMessageError("malformed", f"request lacks temperature {name!r}")
+            row.append(float(temps[name]))
+        else:
+            row.append(float(q[int(name[1:]) - 1]))
+    return np.array([row])
+
+
+def controller_jacobian(robot: RobotModel, q: np.ndarray) -> np.ndarray:
+    """Tool Jacobian ``(6, n)`` w.r.t. controller angles (J2/J3 coupling applied)."""
+    J = robot.jacobian(q[None])[0]
+    if robot.description.coupling == "j3_plus_j2":
+        J = J.copy()
+        J[:, 1] += J[:, 2]
+    return J
+
+
+def damped_step(J: np.ndarray, r: np.ndarray, damping: float, max_step: float) -> np.ndarray:
+    """Damped least squares ``J^T (J J^T + d^2 I)^-1 r``, capped at ``max_step`` (rad): stays
+    small near singular poses, where a plain pseudo-inverse would swing the wrist."""
+    step = J.T @ np.linalg.solve(J @ J.T + damping**2 * np.eye(J.shape[0]), r)
+    norm = float(np.abs(step).max())
+    return step if norm <= max_step else step * (max_step / norm)
+
+
+def compensate(
+    model: ErrorModel,
+    robot: RobotModel,
+    req: CompensationRequest,
+    cfg: CompensationConfig,
+    model_version: int = 0,
+) -> CompensationReply:
+    """Predict the error at ``req.q`` and the command that lands on the target (pure)."""
+    q0 = np.asarray(req.q, dtype=float)
+    defl = None if req.deflection is None else np.asarray(req.deflection, dtype=float)
+    if req.target_xyz is None:
+        target = robot.fk(q0[None])[0]
+    else:
+        target = transform_from_xyz_quat(np.asarray(req.target_xyz), np.asarray(req.target_quat))[0]
+
+    def residual_at(q: np.ndarray) -> np.ndarray:
+        e = model.predict(features_at(model.feature_names, q, defl, req.temperatures)).mean
+        return pose_error(target[None], apply_error(robot.fk(q[None]), e))[0]
+
+    pred0 = model.predict(features_at(model.feature_names, q0, defl, req.temperatures))
+    q, r = q0.copy(), residual_at(q0)
+    damping, iterations = cfg.damping, 0
+    for iterations in range(1, cfg.max_iterations + 1):  # noqa: B007
+        if np.linalg.norm(r[:3]) < cfg.tolerance_m and np.linalg.norm(r[3:]) < cfg.tolerance_m:
+            break
+        J = controller_jacobian(robot, q)
+        for _ in range(8):  # Levenberg-Marquardt: raise the damping until the step helps
+            q_try = q + damped_step(J, r, damping, cfg.max_step_rad)
+            r_try = residual_at(q_try)
+            if np.linalg.norm(r_try) < np.linalg.norm(r):
+                q, r, damping = q_try, r_try, max(damping / 10.0, 1e-12)
+                break
+            damping *= 10.0
+        else:
+            break  # no step reduces the residual: the best reachable command
+    residual = float(np.linalg.norm(r[:3]))
+    lo, hi = pred0.interval(cfg.level)
+    epistemic = pred0.epistemic()[0]
+    worst_mm = float(np.sqrt(epistemic[:3].max())) * 1000.0
+    trusted = worst_mm <= cfg.epistemic_limit_mm
+    return CompensationReply(
+        model_version=model_version,
+        error=tuple(pred0.mean[0].tolist()),
+        lo=tuple(lo[0].tolist()),
+        hi=tuple(hi[0].tolist()),
+        level=cfg.level,
+        aleatoric=tuple(pred0.aleatoric()[0].tolist()),
+        epistemic=tuple(epistemic.tolist()),
+        q_corrected=tuple(q.tolist()),
+        iterations=iterations,
+        residual_m=residual,
+        trusted=trusted,
+        reason=""
+        if trusted
+        else f"epistemic std {worst_mm:.3f} mm > limit {cfg.epistemic_limit_mm} mm",
+    )

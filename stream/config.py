@@ -1,0 +1,163 @@
+"""The daemon configuration: frozen dataclasses loaded once from TOML (see deploy/).
+
+>>> cfg = config_from_dict({"cell": "c1", "robot": [{"name": "r1", "description": "ur10"}]})
+>>> cfg.robots[0].stages
+('window', 'learner', 'compensation')
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from kinematics.errors import ConfigError, RobocalError
+from learner.config import ContinualConfig, ModelConfig, TrainConfig
+from stream.bus import BusConfig
+from stream.compensation import CompensationConfig
+from stream.learner_core import LearnerStageConfig
+from stream.window import WindowConfig
+
+STAGES = ("window", "learner", "compensation", "dashboard")
+
+
+@dataclass(frozen=True, kw_only=True)
+class RobotConfig:
+    """One robot: its key name, description (shipped name or TOML path), stages, ``T_W_0``."""
+
+    name: str
+    description: str
+    stages: tuple[str, ...] = ("window", "learner", "compensation")
+    T_W_0: tuple[tuple[float, ...], ...] | None = None
+
+    def __post_init__(self) -> None:
+        if not self.name or "/" in self.name or "*" in self.name:
+            raise ConfigError(f"robot.name must be a plain key chunk, got {self.name!r}")
+        bad = [s for s in self.stages if s not in STAGES]
+        if bad:
+            raise ConfigError(f"robot {self.name!r}: unknown stage(s) {bad}; known: {STAGES}")
+        if self.T_W_0 is not None and np.asarray(self.T_W_0, dtype=float).shape != (4, 4):
+            raise ConfigError(f"robot {self.name!r}: T_W_0 must be a 4x4 matrix")
+
+
+@dataclass(frozen=True, kw_only=True)
+class DashboardConfig:
+    """Where the dashboard goes: an .rrd file, a served web viewer, or a running viewer."""
+
+    rrd: str | None = None
+    serve: bool = False
+    web_port: int = 9090
+    grpc_port: int = 9876
+    connect: str | None = None
+
+    def __post_init__(self) -> None:
+        if not (self.rrd or self.serve or self.connect):
+            raise ConfigError("dashboard needs rrd, serve = true or connect")
+
+
+@dataclass(frozen=True, kw_only=True)
+class RecorderConfig:
+    """The MCAP file of the recorder and how often it flushes chunks (s)."""
+
+    path: str
+    flush_interval_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not self.flush_interval_s > 0:
+            raise ConfigError(f"recorder.flush_interval_s must be > 0, got {self.flush_interval_s}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class DaemonConfig:
+    """Everything ``robocal run`` needs, validated at load."""
+
+    cell: str = "cell1"
+    bus: BusConfig = field(default_factory=BusConfig)
+    robots: tuple[RobotConfig, ...] = ()
+    window: WindowConfig = field(default_factory=WindowConfig)
+    learner: LearnerStageConfig = field(default_factory=LearnerStageConfig)
+    compensation: CompensationConfig = field(default_factory=CompensationConfig)
+    dashboard: DashboardConfig | None = None
+    recorder: RecorderConfig | None = None
+    checkpoint_dir: str | None = None
+    log_per_s: float = 1.0
+    torch_threads: int = 1
+
+    def __post_init__(self) -> None:
+        if not self.cell or "/" in self.cell or "*" in self.cell:
+            raise ConfigError(f"cell must be a plain key chunk, got {self.cell!r}")
+        if not (isinstance(self.torch_threads, int) and self.torch_threads >= 1):
+            raise ConfigError(f"torch_threads must be an int >= 1, got {self.torch_threads!r}")
+        if not self.robots:
+            raise ConfigError("config needs at least one [[robot]]")
+        names = [r.name for r in self.robots]
+        if len(set(names)) != len(names):
+            raise ConfigError(f"robot names must be unique, got {names}")
+        if any("dashboard" in r.stages for r in self.robots) and self.dashboard is None:
+            raise ConfigError("a robot runs the dashboard stage but there is no [dashboard]")
+
+
+def _build(cls: type, raw: Any, where: str) -> Any:
+    if not isinstance(raw, dict):
+        raise ConfigError(f"[{where}] must be a table, got {type(raw).__name__}")
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(raw) - known)
+    if unknown:
+        raise ConfigError(f"[{where}] unknown field(s) {unknown}; known: {sorted(known)}")
+    values = {k: tuple(map(_tuple, v)) if isinstance(v, list) else v for k, v in raw.items()}
+    try:
+        return cls(**values)
+    except RobocalError as exc:
+        raise ConfigError(f"[{where}] {exc}") from None
+    except TypeError as exc:
+        raise ConfigError(f"[{where}] {exc}") from None
+
+
+def _tuple(v: Any) -> Any:
+    return tuple(map(_tuple, v)) if isinstance(v, list) else v
+
+
+def config_from_dict(raw: dict) -> DaemonConfig:
+    """Build and validate a :class:`DaemonConfig` from the parsed TOML layout."""
+    raw = dict(raw)
+    learner_raw = dict(raw.pop("learner", {}))
+    learner = _build(
+        LearnerStageConfig,
+        {
+            **learner_raw,
+            "model": _build(ModelConfig, learner_raw.pop("model", {}), "learner.model"),
+            "train": _build(TrainConfig, learner_raw.pop("train", {}), "learner.train"),
+            "continual": _build(
+                ContinualConfig, learner_raw.pop("continual", {}), "learner.continual"
+            ),
+        },
+        "learner",
+    )
+    robots = tuple(_build(RobotConfig, r, "robot") for r in raw.pop("robot", []))
+    sections = {
+        "bus": BusConfig,
+        "window": WindowConfig,
+        "compensation": CompensationConfig,
+        "dashboard": DashboardConfig,
+        "recorder": RecorderConfig,
+    }
+    built = {k: _build(cls, raw.pop(k), k) for k, cls in sections.items() if k in raw}
+    return _build(DaemonConfig, {**raw, **built, "learner": learner, "robots": robots}, "top level")
+
+
+def load_config(path: str | Path) -> DaemonConfig:
+    """Read a daemon TOML config; any problem raises ConfigError naming the file."""
+    path = Path(path)
+    if not path.exists():
+        raise ConfigError(f"{path}: config file not found")
+    try:
+        raw = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: invalid TOML: {exc}") from None
+    try:
+        return config_from_dict(raw)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None

@@ -1,0 +1,215 @@
+"""The learner stage's logic without I/O: batches in, model updates and metrics out.
+
+Every ``holdout_every``-th point (by arrival) joins a held-out test set (the newest
+``max_test_points``) that is never trained on; the rest go to
+:meth:`learner.continual.ContinualLearner.update`. After each update the core reports test
+error (mean/max mm), the prequential batch error, uncertainty on the test set
+(aleatoric/epistemic std, mm) and the memory composition by batch age. A checkpoint (learner
+state + test set + counters, safetensors with JSON metadata) lets a restart continue without
+losing accepted data; batches already learned (by ``seq``) are refused as duplicates.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from safetensors import SafetensorError
+from safetensors.numpy import load as np_load
+from safetensors.numpy import save as np_save
+
+from kinematics.description import RobotDescription
+from kinematics.errors import ConfigError, RobocalError, SnapshotError
+from kinematics.model import RobotModel
+from learner.config import ContinualConfig, ModelConfig, TrainConfig
+from learner.continual import ContinualLearner, state_from_bytes, state_to_bytes
+from learner.features import FeatureSpec, dataset_features, dataset_labels, feature_spec
+from learner.model import ErrorModel
+from learner.snapshot import snapshot_from_bytes, snapshot_to_bytes
+from stream.messages import Batch, Metrics, ModelHeader, RejectedMessageError
+from stream.points import points_to_dataset, temperature_column
+
+CHECKPOINT_SCHEMA = "robocal.learner_stage"
+
+
+@dataclass(frozen=True, kw_only=True)
+class LearnerStageConfig:
+    """Model, training and continual configs, the hold-out rate and the feature subset."""
+
+    model: ModelConfig = field(default_factory=ModelConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    continual: ContinualConfig = field(default_factory=ContinualConfig)
+    holdout_every: int = 10
+    max_test_points: int = 1000
+    seed: int = 0
+    use_secondary: bool = True
+    use_temperatures: bool = True
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.holdout_every, int) and self.holdout_every >= 2):
+            raise ConfigError(
+                f"learner.holdout_every must be an int >= 2, got {self.holdout_every}"
+            )
+
+
+@dataclass(frozen=True)
+class Update:
+    """One published model: its header, snapshot bytes (safetensors) and metrics."""
+
+    header: ModelHeader
+    snapshot: bytes
+    metrics: Metrics
+
+
+class LearnerCore:
+    """Turns batches of one robot into model updates (see the module docstring)."""
+
+    def __init__(
+        self, desc: RobotDescription, cfg: LearnerStageConfig, T_W_0: np.ndarray | None = None
+    ) -> None:
+        self.desc, self.cfg = desc, cfg
+        self.robot = RobotModel(desc)
+        self.T_W_0 = None if T_W_0 is None else np.asarray(T_W_0, dtype=float)
+        self.learner: ContinualLearner | None = None
+        self.test_x: np.ndarray | None = None
+        self.test_y = np.empty((0, 6))
+        self.last_seq = -1
+        self.n_points = 0
+        self._age: dict[bytes, int] = {}
+
+    def spec_for(self, batch: Batch) -> FeatureSpec:
+        p = batch.points[0]
+        names = tuple(temperature_column(n) for n in p.temperature_names)
+        if not self.cfg.use_temperatures:
+            names = ()
+        has_sec = self.cfg.use_secondary and p.qs is not None
+        return feature_spec(self.desc, len(names), has_sec, names)
+
+    def features(self, batch: Batch) -> tuple[np.ndarray, np.ndarray]:
+        """Raw features and labels of a batch's points (SI)."""
+        try:
+            ds = points_to_dataset(batch.points, self.desc.name, self.T_W_0)
+            spec = self.spec_for(batch) if self.learner is None else self.learner.model.spec
+            return dataset_features(ds, spec), dataset_labels(ds, self.robot)
+        except RobocalError as exc:
+            raise RejectedMessageError("features", f"batch {batch.seq}: {exc}") from None
+
+    def add_batch(self, batch: Batch, now: float | None = None) -> Update | None:
+        """Learn one batch; the published update, or None while collecting the first points."""
+        if batch.seq <= self.last_seq:
+            raise RejectedMessageError("duplicate", f"batch {batch.seq} already learned")
+        if not batch.points:
+            raise RejectedMessageError("malformed", f"batch {batch.seq} has no points")
+        X, Y = self.features(batch)
+        if not (np.isfinite(X).all() and np.isfinite(Y).all()):
+            raise RejectedMessageError("non_finite", f"batch {batch.seq}: non-finite features")
+        if self.learner is None:
+            model = ErrorModel.create(
+                self.spec_for(batch), self.cfg.model, self.cfg.train, self.cfg.seed, self.desc.name
+            )
+            self.learner = ContinualLearner(model, self.cfg.continual)
+            self.test_x = np.empty((0, X.shape[1]))
+        k = self.n_points + np.arange(len(X))
+        test = (k % self.cfg.holdout_every) == self.cfg.holdout_every - 1
+        self.test_x = np.concatenate([self.test_x, X[test]])
+        self.test_y = np.concatenate([self.test_y, Y[test]])
+        for row in X[~test]:
+            self._age[row.tobytes()] = batch.seq
+        self.n_points += len(X)
+        self.last_seq = batch.seq
+        cap = self.cfg.max_test_points
+        self.test_x, self.test_y = self.test_x[-cap:], self.test_y[-cap:]
+        version = self.learner.version
+        m = self.learner.update(X[~test], Y[~test])
+        if self.learner.version == version:
+            return None
+        in_memory = {r.tobytes() for r in self.learner.memory.x}
+        self._age = {k: v for k, v in self._age.items() if k in in_memory}
+        metrics = self.metrics(m.batch_mean_mm, m.train_time_s, now)
+        header = ModelHeader(
+            model_version=self.learner.version,
+            robot=self.desc.name,
+            n_seen=self.learner.n_seen,
+            t=batch.points[-1].t,
+        )
+        snap = snapshot_to_bytes(self.learner.model, {"model_version": self.learner.version})
+        return Update(header, snap, metrics)
+
+    def metrics(self, batch_mean_mm: float, train_time_s: float, now: float | None) -> Metrics:
+        learner = self.learner
+        test_mean = test_max = ale = epi = epi90 = float("nan")
+        if len(self.test_y):
+            ev = learner.model.predict(self.test_x)
+            err = np.linalg.norm(ev.mean[:, :3] - self.test_y[:, :3], axis=1) * 1e3
+            test_mean, test_max = float(err.mean()), float(err.max())
+            ale = float(np.sqrt(ev.aleatoric()[:, :3]).mean() * 1e3)
+            epi_all = np.sqrt(ev.epistemic()[:, :3]).mean(axis=1) * 1e3
+            epi, epi90 = float(epi_all.mean()), float(np.percentile(epi_all, 90))
+        ages = [self.last_seq - self._age.get(r.tobytes(), self.last_seq) for r in learner.memory.x]
+        age_counts = np.bincount(np.asarray(ages, dtype=int), minlength=1) if ages else []
+        return Metrics(
+            model_version=learner.version,
+            n_seen=learner.n_seen,
+            memory_size=len(learner.memory),
+            train_time_s=train_time_s,
+            test_mean_mm=test_mean,
+            test_max_mm=test_max,
+            batch_mean_mm=batch_mean_mm,
+            aleatoric_mm=ale,
+            epistemic_mm=epi,
+            epistemic_p90_mm=epi90,
+            memory_age=tuple(int(c) for c in age_counts),
+            t=time.time() if now is None else now,
+        )
+
+    def checkpoint(self, path: str | Path) -> Path | None:
+        """Write the learner state, test set and counters atomically (None before a model)."""
+        if self.learner is None:
+            return None
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        meta = {
+            "schema": CHECKPOINT_SCHEMA,
+            "last_seq": self.last_seq,
+            "n_points": self.n_points,
+            "state": state_to_bytes(self.learner.state_dict()).hex(),
+        }
+        ages = np.array(list(self._age.values()), dtype=np.int64)
+        rows = np.array([np.frombuffer(k, dtype=float) for k in self._age]).reshape(len(ages), -1)
+        data = np_save(
+            {"test_x": self.test_x, "test_y": self.test_y, "age_rows": rows, "ages": ages},
+            metadata={"robocal": json.dumps(meta)},
+        )
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+        return path
+
+    def restore(self, path: str | Path) -> None:
+        """Continue from a :meth:`checkpoint` file."""
+        path = Path(path)
+        try:
+            data = path.read_bytes()
+            arrays = np_load(data)
+            n = int.from_bytes(data[:8], "little")
+            meta = json.loads(json.loads(data[8 : 8 + n])["__metadata__"]["robocal"])
+            if meta.get("schema") != CHECKPOINT_SCHEMA:
+                raise SnapshotError(f"{path}: schema {meta.get('schema')!r} is not a checkpoint")
+            state = state_from_bytes(bytes.fromhex(meta["state"]))
+        except (OSError, SafetensorError, ValueError, KeyError) as exc:
+            raise SnapshotError(f"{path}: unreadable checkpoint: {exc}") from None
+        model = snapshot_from_bytes(state["model"])
+        self.learner = ContinualLearner(model, self.cfg.continual)
+        self.learner.load_state(state)
+        self.test_x, self.test_y = arrays["test_x"], arrays["test_y"]
+        self.last_seq, self.n_points = int(meta["last_seq"]), int(meta["n_points"])
+        self._age = {
+            np.ascontiguousarray(r).tobytes(): int(a)
+            for r, a in zip(arrays["age_rows"], arrays["ages"], strict=True)
+        }

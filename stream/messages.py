@@ -1,0 +1,384 @@
+"""Wire messages of the pipeline: key expressions, frozen dataclasses, JSON codec, validation.
+
+Every JSON payload is an object with ``schema`` (``robocal.<stream>``) and ``version``
+(:data:`VERSION`) beside the dataclass fields; SI units (rad, m, s, °C). Source samples carry
+the source time ``t`` (s) and a per-source sequence number ``seq``.
+
+Model snapshots are binary: ``u64 little-endian header length | header JSON | safetensors``,
+where the header is a :class:`ModelHeader` (JSON with ``schema``/``version``) and the
+safetensors bytes come from ``learner.snapshot.snapshot_to_bytes`` (weights plus their own
+JSON metadata; never pickle). :func:`encode_model` / :func:`decode_model` frame and unframe.
+
+>>> s = TemperatureSample(seq=0, t=1.0, names=("ambient",), values=(21.5,))
+>>> decode(encode(s), TemperatureSample) == s
+True
+>>> key("cell1", "ur10", "joints")
+'robocal/cell1/ur10/joints'
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+import struct
+from collections import Counter
+from dataclasses import MISSING, asdict, dataclass, field, fields
+from typing import Any, ClassVar, TypeVar
+
+from kinematics.errors import SchemaError
+
+VERSION = 1
+ROOT = "robocal"
+STREAMS = (
+    "joints",
+    "tracker",
+    "temperature",
+    "points",
+    "batches",
+    "model",
+    "metrics",
+    "diagnostics",
+    "compensate",
+)
+#: Physical plausibility ranges for validation on arrival.
+TEMPERATURE_RANGE_C = (-40.0, 150.0)
+POSITION_LIMIT_M = 100.0
+JOINT_LIMIT_RAD = 4 * math.pi
+QUATERNION_TOLERANCE = 1e-3
+
+
+class RejectedMessageError(SchemaError):
+    """A message that is dropped; ``reason`` is the counter it is counted under."""
+
+    def __init__(self, reason: str, detail: str) -> None:
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
+
+
+def key(cell: str, robot: str, stream: str) -> str:
+    """The key expression ``robocal/<cell>/<robot>/<stream>``."""
+    if stream not in STREAMS:
+        raise SchemaError(f"stream must be one of {STREAMS}, got {stream!r}")
+    return f"{ROOT}/{cell}/{robot}/{stream}"
+
+
+def split_key(k: str) -> tuple[str, str, str]:
+    """``(cell, robot, stream)`` of a key expression made by :func:`key`."""
+    parts = str(k).split("/")
+    if len(parts) != 4 or parts[0] != ROOT or parts[3] not in STREAMS:
+        raise RejectedMessageError(
+            "bad_key", f"expected robocal/<cell>/<robot>/<stream>, got {k!r}"
+        )
+    return parts[1], parts[2], parts[3]
+
+
+@dataclass(frozen=True, kw_only=True)
+class JointSample:
+    """Controller joint angles ``q`` (rad) and optional secondary encoders ``qs`` at time ``t``."""
+
+    SCHEMA: ClassVar[str] = "robocal.joints"
+    seq: int
+    t: float
+    q: tuple[float, ...]
+    qs: tuple[float, ...] | None = None
+
+    def check(self) -> None:
+        _finite_seq_time(self)
+        check_finite("q", self.q, JOINT_LIMIT_RAD)
+        if self.qs is not None:
+            check_finite("qs", self.qs, JOINT_LIMIT_RAD)
+            if len(self.qs) != len(self.q):
+                raise RejectedMessageError(
+                    "joint_count", f"{len(self.qs)} secondary encoders for {len(self.q)} joints"
+                )
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrackerSample:
+    """A measured probe pose (m, unit quaternion) in ``frame`` (``"base"`` or ``"tracker"``)."""
+
+    SCHEMA: ClassVar[str] = "robocal.tracker"
+    seq: int
+    t: float
+    xyz: tuple[float, float, float]
+    quat: tuple[float, float, float, float]
+    frame: str = "base"
+
+    def check(self) -> None:
+        _finite_seq_time(self)
+        check_finite("xyz", self.xyz, POSITION_LIMIT_M, length=3)
+        check_finite("quat", self.quat, 10.0, length=4)
+        norm = math.sqrt(sum(v * v for v in self.quat))
+        if abs(norm - 1.0) > QUATERNION_TOLERANCE:
+            raise RejectedMessageError("quaternion", f"quaternion norm {norm:.5f}, expected 1")
+        if self.frame not in ("base", "tracker"):
+            raise RejectedMessageError(
+                "out_of_range", f"frame must be base|tracker, got {self.frame!r}"
+            )
+
+
+@dataclass(frozen=True, kw_only=True)
+class TemperatureSample:
+    """Temperatures (°C) of the named sensors at time ``t``."""
+
+    SCHEMA: ClassVar[str] = "robocal.temperature"
+    seq: int
+    t: float
+    names: tuple[str, ...]
+    values: tuple[float, ...]
+
+    def check(self) -> None:
+        _finite_seq_time(self)
+        lo, hi = TEMPERATURE_RANGE_C
+        for name, v in zip(self.names, self.values, strict=False):
+            if not (isinstance(v, int | float) and math.isfinite(v)):
+                raise RejectedMessageError("non_finite", f"temperature {name!r} is {v!r}")
+            if not lo <= v <= hi:
+                raise RejectedMessageError(
+                    "out_of_range", f"temperature {name!r} {v} °C not in {lo}…{hi}"
+                )
+        if not all(isinstance(n, str) and n for n in self.names):
+            raise RejectedMessageError(
+                "malformed", f"temperature names must be strings: {self.names}"
+            )
+        if len(self.names) != len(self.values):
+            raise RejectedMessageError(
+                "joint_count", f"{len(self.names)} names, {len(self.values)} values"
+            )
+
+
+@dataclass(frozen=True, kw_only=True)
+class DataPoint:
+    """One joined measurement: settled joints, temperatures and the tracker pose at ``t``."""
+
+    SCHEMA: ClassVar[str] = "robocal.points"
+    seq: int
+    t: float
+    q: tuple[float, ...]
+    xyz: tuple[float, float, float]
+    quat: tuple[float, float, float, float]
+    frame: str = "base"
+    qs: tuple[float, ...] | None = None
+    temperature_names: tuple[str, ...] = ()
+    temperatures: tuple[float, ...] = ()
+
+    def check(self) -> None:
+        JointSample(seq=self.seq, t=self.t, q=self.q, qs=self.qs).check()
+        TrackerSample(
+            seq=self.seq, t=self.t, xyz=self.xyz, quat=self.quat, frame=self.frame
+        ).check()
+        TemperatureSample(
+            seq=self.seq, t=self.t, names=self.temperature_names, values=self.temperatures
+        ).check()
+
+
+@dataclass(frozen=True, kw_only=True)
+class Batch:
+    """``n_B`` consecutive data points, numbered from 0 per robot."""
+
+    SCHEMA: ClassVar[str] = "robocal.batches"
+    seq: int
+    points: tuple[DataPoint, ...]
+
+    def check(self) -> None:
+        for p in self.points:
+            p.check()
+
+
+@dataclass(frozen=True, kw_only=True)
+class ModelHeader:
+    """What travels in front of a snapshot's safetensors bytes."""
+
+    SCHEMA: ClassVar[str] = "robocal.model"
+    model_version: int
+    robot: str
+    n_seen: int
+    t: float
+
+    def check(self) -> None:
+        if self.model_version < 0 or self.n_seen < 0:
+            raise RejectedMessageError("out_of_range", "model_version and n_seen must be >= 0")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Metrics:
+    """One learner update: version, counts, timing and errors (mm), uncertainty (mm)."""
+
+    SCHEMA: ClassVar[str] = "robocal.metrics"
+    model_version: int
+    n_seen: int
+    memory_size: int
+    train_time_s: float
+    test_mean_mm: float
+    test_max_mm: float
+    batch_mean_mm: float
+    aleatoric_mm: float
+    epistemic_mm: float
+    epistemic_p90_mm: float
+    memory_age: tuple[int, ...] = ()
+    t: float = 0.0
+
+    def check(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            items = value if f.name == "memory_age" else (value,)
+            if not all(type(v) in _NUMBER for v in items):  # NaN is allowed (no test set yet)
+                raise RejectedMessageError("malformed", f"metrics.{f.name} is not numeric")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Diagnostics:
+    """Per-stage counts of dropped messages by reason and of accepted ones."""
+
+    SCHEMA: ClassVar[str] = "robocal.diagnostics"
+    stage: str
+    accepted: int
+    dropped: dict[str, int] = field(default_factory=dict)
+    t: float = 0.0
+
+    def check(self) -> None:
+        return None
+
+
+Message = TypeVar("Message")
+STREAM_TYPES: dict[str, type] = {
+    "joints": JointSample,
+    "tracker": TrackerSample,
+    "temperature": TemperatureSample,
+    "points": DataPoint,
+    "batches": Batch,
+    "metrics": Metrics,
+    "diagnostics": Diagnostics,
+}
+
+
+def to_dict(msg: Any) -> dict[str, Any]:
+    """The JSON-ready dict of a message, with ``schema`` and ``version``."""
+    return {"schema": msg.SCHEMA, "version": VERSION, **asdict(msg)}
+
+
+def encode(msg: Any) -> bytes:
+    """Compact UTF-8 JSON of a message."""
+    return json.dumps(to_dict(msg), separators=(",", ":"), allow_nan=True).encode()
+
+
+def decode(payload: bytes | str, cls: type[Message]) -> Message:
+    """Parse and validate a payload as ``cls``; raise RejectedMessageError (reason)."""
+    try:
+        raw = json.loads(payload)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise RejectedMessageError("malformed", f"not JSON ({exc.__class__.__name__})") from None
+    return from_dict(raw, cls)
+
+
+def from_dict(raw: Any, cls: type[Message]) -> Message:
+    """Validate a parsed JSON object as ``cls``."""
+    if not isinstance(raw, dict):
+        raise RejectedMessageError("malformed", f"expected a JSON object, got {type(raw).__name__}")
+    if raw.get("schema") != cls.SCHEMA:
+        raise RejectedMessageError(
+            "schema", f"expected schema {cls.SCHEMA!r}, got {raw.get('schema')!r}"
+        )
+    if raw.get("version") != VERSION:
+        raise RejectedMessageError(
+            "version", f"expected version {VERSION}, got {raw.get('version')!r}"
+        )
+    names, required = _field_names(cls)
+    values = {k: v for k, v in raw.items() if k in names}
+    missing = required - values.keys()
+    if missing:
+        raise RejectedMessageError("malformed", f"{cls.SCHEMA}: missing field(s) {sorted(missing)}")
+    try:
+        msg = cls(**{k: _freeze(k, v) for k, v in values.items()})
+        msg.check()
+    except (TypeError, ValueError, AttributeError) as exc:  # wrong JSON types in fields
+        raise RejectedMessageError("malformed", f"{cls.SCHEMA}: {exc}") from None
+    return msg
+
+
+@functools.cache
+def _field_names(cls: type) -> tuple[frozenset[str], frozenset[str]]:
+    """All field names of a message class and the required ones."""
+    all_ = frozenset(f.name for f in fields(cls))
+    required = frozenset(
+        f.name for f in fields(cls) if f.default is MISSING and f.default_factory is MISSING
+    )
+    return all_, required
+
+
+def _freeze(name: str, value: Any) -> Any:
+    if name == "points":
+        if not isinstance(value, list):
+            raise ValueError("points must be a list")
+        if not all(isinstance(p, dict) for p in value):
+            raise ValueError("points must be JSON objects")
+        return tuple(
+            from_dict({**p, "schema": DataPoint.SCHEMA, "version": VERSION}, DataPoint)
+            for p in value
+        )
+    if isinstance(value, list):
+        return tuple(value)
+    return value
+
+
+def _finite_seq_time(msg: Any) -> None:
+    if not isinstance(msg.seq, int) or isinstance(msg.seq, bool) or msg.seq < 0:
+        raise RejectedMessageError("out_of_range", f"seq must be an int >= 0, got {msg.seq!r}")
+    if not isinstance(msg.t, int | float) or not math.isfinite(msg.t):
+        raise RejectedMessageError("non_finite", f"t is {msg.t!r}")
+
+
+def check_finite(name: str, values: tuple, limit: float, length: int | None = None) -> None:
+    """Raise RejectedMessageError (non_finite / out_of_range / malformed) unless ``values`` are
+    ``length`` finite numbers within ``±limit``."""
+    if length is not None and len(values) != length:
+        raise RejectedMessageError("malformed", f"{name} needs {length} values, got {len(values)}")
+    if all(type(v) in _NUMBER and -limit <= v <= limit for v in values):
+        return  # the fast path; NaN and inf fail the comparison
+    for i, v in enumerate(values):
+        if type(v) not in _NUMBER or not math.isfinite(v):
+            raise RejectedMessageError("non_finite", f"{name}[{i}] is {v!r}")
+        if abs(v) > limit:
+            raise RejectedMessageError("out_of_range", f"{name}[{i}] = {v} beyond ±{limit}")
+
+
+_NUMBER = (int, float)
+
+
+def encode_model(header: ModelHeader, snapshot: bytes) -> bytes:
+    """Frame a snapshot: ``u64 LE header length | header JSON | safetensors bytes``."""
+    head = encode(header)
+    return struct.pack("<Q", len(head)) + head + snapshot
+
+
+def decode_model(payload: bytes) -> tuple[ModelHeader, bytes]:
+    """Unframe a model payload into its header and the safetensors bytes."""
+    if len(payload) < 8:
+        raise RejectedMessageError(
+            "malformed", f"model payload of {len(payload)} bytes is too short"
+        )
+    (n,) = struct.unpack("<Q", payload[:8])
+    if n > len(payload) - 8:
+        raise RejectedMessageError("malformed", f"model header length {n} beyond payload")
+    return decode(payload[8 : 8 + n], ModelHeader), bytes(payload[8 + n :])
+
+
+class DropCounter:
+    """Counts accepted messages and drops by reason; the stage's diagnostics source."""
+
+    def __init__(self, stage: str) -> None:
+        self.stage = stage
+        self.accepted = 0
+        self.dropped: Counter[str] = Counter()
+
+    def drop(self, reason: str, n: int = 1) -> None:
+        self.dropped[reason] += n
+
+    def accept(self, n: int = 1) -> None:
+        self.accepted += n
+
+    def diagnostics(self, t: float = 0.0) -> Diagnostics:
+        return Diagnostics(
+            stage=self.stage, accepted=self.accepted, dropped=dict(self.dropped), t=t
+        )

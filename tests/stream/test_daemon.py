@@ -1,0 +1,122 @@
+"""``robocal run`` as a real process: stages come alive, learn, and SIGTERM stops them cleanly
+(checkpoint written, MCAP finished); a restart answers the model query from the checkpoint."""
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from sim_sources.cell import simulate
+from sim_sources.scenarios import get_scenario
+from sim_sources.streaming import StreamingConfig
+from stream.bus import BusConfig, alive_stages, free_port, open_session
+from stream.messages import decode_model, key
+from stream.sources import SimCellSource
+
+pytestmark = pytest.mark.integration
+
+CONFIG = """
+cell = "plant"
+checkpoint_dir = "{dir}"
+
+[bus]
+mode = "peer"
+listen = ["tcp/127.0.0.1:{port}"]
+multicast_scouting = false
+
+[[robot]]
+name = "fanuc_m900ib700"
+description = "fanuc_m900ib700"
+stages = ["window", "learner"]
+T_W_0 = {T_W_0}
+
+[window]
+batch_size = 20
+
+[learner]
+holdout_every = 5
+
+[learner.model]
+hidden_layers = 1
+neurons = 16
+
+[learner.continual]
+memory = 40
+batch = 20
+init = 10
+epochs_per_update = 5
+init_epochs = 20
+
+[recorder]
+path = "{dir}/plant.mcap"
+flush_interval_s = 0.2
+"""
+
+
+def start(config_path):
+    return subprocess.Popen(
+        [str(Path(sys.executable).with_name("robocal")), "run", "--config", str(config_path)],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def wait_alive(session, n, proc, timeout=60.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, proc.stderr.read()
+        if len(alive_stages(session, "plant", timeout_s=0.5)) >= n:
+            return
+        time.sleep(0.2)
+    raise AssertionError("stages did not come alive")
+
+
+def test_run_learns_stops_on_sigterm_and_restarts_from_its_checkpoint(tmp_path):
+    ds = simulate(get_scenario("paper"), 41, 2)
+    port = free_port()
+    cfg = tmp_path / "robocal.toml"
+    cfg.write_text(CONFIG.format(dir=tmp_path, port=port, T_W_0=json.dumps(ds.meta.T_W_0)))
+    proc = start(cfg)
+    client = open_session(BusConfig.loopback(port, listen=False))
+    try:
+        wait_alive(client, 3, proc)  # recorder, window, learner
+        models = []
+        robot = ds.meta.robot
+        sub = client.declare_subscriber(
+            key("plant", robot, "model"), lambda s: models.append(s.payload.to_bytes())
+        )
+        SimCellSource(client, "plant", robot, ds, StreamingConfig(period_s=1.0)).start()
+        deadline = time.monotonic() + 30
+        while len(models) < 2 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert len(models) >= 2
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(60) == 0
+        logs = [
+            json.loads(line) for line in proc.stderr.read().splitlines() if line.startswith("{")
+        ]
+        assert {"daemon_started", "model_published", "daemon_stopped"} <= {x["event"] for x in logs}
+        assert (tmp_path / f"{robot}.checkpoint.safetensors").exists()
+        with (tmp_path / "plant.mcap").open("rb") as f:
+            summary = make_reader(f).get_summary()
+        topics = {c.topic for c in summary.channels.values()}
+        assert key("plant", robot, "model") in topics and key("plant", robot, "joints") in topics
+        last_version = decode_model(models[-1])[0].model_version
+
+        restarted = start(cfg)
+        wait_alive(client, 3, restarted)
+        replies = [r.ok for r in client.get(key("plant", robot, "model"), timeout=5.0)]
+        assert decode_model(replies[0].payload.to_bytes())[0].model_version >= last_version
+        restarted.send_signal(signal.SIGINT)
+        assert restarted.wait(60) == 0
+        sub.undeclare()
+    finally:
+        client.close()
+        for p in (proc, locals().get("restarted")):
+            if p is not None and p.poll() is None:
+                p.kill()

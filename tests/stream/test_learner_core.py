@@ -1,0 +1,82 @@
+"""The learner stage core: hold-out, updates, duplicates, checkpoint -> restart continues."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from kinematics.description import load_description
+from learner.config import ContinualConfig, ModelConfig, TrainConfig
+from sim_sources.cell import simulate
+from sim_sources.scenarios import get_scenario
+from stream.learner_core import LearnerCore, LearnerStageConfig
+from stream.messages import Batch, RejectedMessageError
+from stream.points import dataset_to_points
+
+CFG = LearnerStageConfig(
+    model=ModelConfig(hidden_layers=1, neurons=16),
+    train=TrainConfig(batch_size=16),
+    continual=ContinualConfig(memory=40, batch=20, init=20, epochs_per_update=5, init_epochs=30),
+    holdout_every=5,
+)
+
+
+@pytest.fixture(scope="module")
+def batches():
+    torch.set_num_threads(1)
+    ds = simulate(get_scenario("paper"), 100, 1)
+    points = dataset_to_points(ds)
+    return ds, [Batch(seq=i, points=tuple(points[20 * i : 20 * i + 20])) for i in range(5)]
+
+
+def core(ds):
+    return LearnerCore(load_description(ds.meta.robot), CFG, np.asarray(ds.meta.T_W_0))
+
+
+def test_updates_hold_out_every_fifth_point_and_report_metrics(batches):
+    ds, bs = batches
+    c = core(ds)
+    updates = [c.add_batch(b) for b in bs]
+    assert updates[0] is None  # 16 training points < init
+    versions = [u.metrics.model_version for u in updates if u is not None]
+    assert versions == [1, 2, 3, 4]
+    assert len(c.test_y) == 20 and c.learner.n_seen == 80
+    m = updates[-1].metrics
+    assert np.isfinite([m.test_mean_mm, m.epistemic_mm, m.aleatoric_mm]).all()
+    assert sum(m.memory_age) == m.memory_size == 40
+    with pytest.raises(RejectedMessageError, match="duplicate"):
+        c.add_batch(bs[2])
+
+
+def test_checkpoint_restart_continues_exactly(batches, tmp_path):
+    ds, bs = batches
+    straight = core(ds)
+    for b in bs:
+        straight.add_batch(b)
+    first = core(ds)
+    for b in bs[:3]:
+        first.add_batch(b)
+    first.checkpoint(tmp_path / "ck.safetensors")
+    resumed = core(ds)
+    resumed.restore(tmp_path / "ck.safetensors")
+    for b in bs[3:]:
+        resumed.add_batch(b)
+    x = straight.test_x
+    np.testing.assert_array_equal(
+        resumed.learner.model.predict(x).gamma, straight.learner.model.predict(x).gamma
+    )
+    assert resumed.metrics(0.0, 0.0, 0.0) == straight.metrics(0.0, 0.0, 0.0)
+
+
+def test_a_bad_batch_is_refused_without_touching_the_state(batches):
+    ds, bs = batches
+    c = core(ds)
+    c.add_batch(bs[0])
+    c.add_batch(bs[1])
+    points = list(bs[2].points)
+    points[3] = replace(points[3], frame="base")  # frames differ inside one batch
+    with pytest.raises(RejectedMessageError, match="features"):
+        c.add_batch(Batch(seq=2, points=tuple(points)))
+    assert (c.last_seq, c.n_points, c.learner.version) == (1, 40, 1)
+    assert c.add_batch(bs[2]).metrics.model_version == 2
