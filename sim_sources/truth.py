@@ -15,12 +15,15 @@ from kinematics.effects import (
     Conditions,
     Effect,
     Perturbation,
-    compliance_deflection,
     dh_poses,
     dh_table,
+    dh_to_ctrl_delta,
 )
 from kinematics.model import RobotModel
 from kinematics.transforms import pose_error
+
+#: Effects that act between motor and link, so an arm-side (secondary) encoder sees them.
+TRANSMISSION_EFFECTS = ("joint_compliance", "backlash", "gear_periodic")
 
 
 @dataclass(frozen=True)
@@ -66,8 +69,12 @@ class TrueRobot:
         }
 
     def deflection(self, cond: Conditions) -> np.ndarray:
-        """Elastic deflections (N, n) rad on the controller's axes (zero without compliance)."""
+        """Link-minus-motor angles (N, n) rad on the controller's axes: what secondary encoders
+        add to the motor reading. Every transmission effect (elastic deflection, backlash, gear
+        ripple) lies between the two encoders; zero without any of them."""
+        desc = self.model.description
+        dq = np.zeros_like(np.asarray(cond.q, dtype=float))
         for effect, params in self.effects:
-            if effect.name == "joint_compliance":
-                return compliance_deflection(self.model, params, cond, effect.balancer)
-        return np.zeros_like(np.asarray(cond.q, dtype=float))
+            if effect.name in TRANSMISSION_EFFECTS:
+                dq += dh_to_ctrl_delta(desc, effect.perturbation(self.model, params, cond).dq)
+        return dq

@@ -130,3 +130,12 @@ def test_paper_campaign_matches_the_published_accuracy(paper):
     assert acc.mean_mm == pytest.approx(2.77, rel=0.15)
     assert acc.std_mm == pytest.approx(0.84, rel=0.15)
     assert acc.max_mm == pytest.approx(10.25, rel=0.15)
+
+
+def test_secondary_encoders_see_backlash_flip_with_approach():
+    ds = simulate(get_scenario("backlash", noise=False), 200, 3)
+    dtheta = ds.deflection()
+    approach = ds.table[[f"true_approach{i}" for i in range(1, 7)]].to_numpy()
+    # The link lags the motor: the arm-side reading is behind the approach direction.
+    assert np.all(np.sign(dtheta[:, 0]) == -approach[:, 0])
+    assert np.abs(dtheta).max() < 1e-3
