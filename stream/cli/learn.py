@@ -1,5 +1,175 @@
-"""CLI commands of the learner: ``train``, ``continual``, ``evaluate``, ``experiment paper``."""
+"""CLI commands of the learner: ``train``, ``continual``, ``evaluate``, ``experiment paper``.
 
-from stream.cli._base import Command
+robocal train --data paper.parquet --out model.safetensors
+robocal continual --data paper.parquet --memory 500 --batch 100 --out cont.safetensors
+robocal evaluate --model model.safetensors --data paper.parquet --json
+robocal experiment paper --data paper.parquet --out study/ --quick
+"""
 
-COMMANDS: tuple[type[Command], ...] = ()
+from __future__ import annotations
+
+import argparse
+import sys
+
+from tqdm import tqdm
+
+from kinematics.dataset import read_dataset
+from learner.config import STRATEGIES, ContinualConfig, TrainConfig
+from learner.experiment import StudyConfig, run_paper_study
+from learner.snapshot import load_snapshot
+from learner.workflow import (
+    continual_on_dataset,
+    curve_paths,
+    evaluate_on_dataset,
+    train_on_dataset,
+)
+from stream.cli._base import Command, add_json_flag, emit
+
+
+def _report_text(title: str, r: dict) -> str:
+    return (
+        f"{title}: mean {r['mean_mm']:.4f} mm (std {r['std_mm']:.4f}, p95 {r['p95_mm']:.4f}, "
+        f"max {r['max_mm']:.4f}), {r['mean_arcmin']:.3f} arcmin, improvement "
+        f"{r['improvement_pct']:.1f}% over uncalibrated {r['uncalibrated_mean_mm']:.4f} mm; "
+        f"90% interval covers {100 * r['coverage_90']:.1f}% "
+        f"(width {r['interval_width_90_mm']:.4f} mm)"
+    )
+
+
+def _add_split(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--data", required=True, help="dataset file (.parquet or .csv)")
+    parser.add_argument("--test-fraction", type=float, default=0.1, help="held-out share")
+    parser.add_argument("--seed", type=int, default=0, help="split, weights and batch order")
+
+
+class Train(Command):
+    name = "train"
+    help = "batch-train an evidential error model on a dataset and report its test accuracy"
+
+    def add_arguments(self, parser: argparse.ArgumentParser) -> None:
+        _add_split(parser)
+        parser.add_argument("--out", required=True, help="model snapshot to write (.safetensors)")
+        parser.add_argument("--max-epochs", type=int, default=TrainConfig().max_epochs)
+        add_json_flag(parser)
+
+    def take_action(self, args: argparse.Namespace) -> int:
+        ds = read_dataset(args.data)
+        cfg = TrainConfig(seed=args.seed, max_epochs=args.max_epochs)
+        with tqdm(total=cfg.max_epochs, desc="train", unit="epoch", file=sys.stderr) as bar:
+            result = train_on_dataset(
+                ds,
+                test_fraction=args.test_fraction,
+                seed=args.seed,
+                train_cfg=cfg,
+                on_epoch=lambda e, v: (bar.update(), bar.set_postfix(val_mse=f"{v:.4g}")),
+                out=args.out,
+            )
+        test = result.test.to_dict() if result.test else {}
+        out = {
+            "model": args.out,
+            "n_train": result.n_train,
+            "epochs": result.report.epochs,
+            "n_weights": result.model.n_weights,
+            "test": test,
+        }
+        text = f"model -> {args.out} ({result.n_train} points, {result.report.epochs} epochs)"
+        if test:
+            text += "\n" + _report_text("test", test)
+        emit(out, args.json, text)
+        return 0
+
+
+class Continual(Command):
+    name = "continual"
+    help = "stream a dataset's training split through continual learning; write model and curve"
+
+    def add_arguments(self, parser: argparse.ArgumentParser) -> None:
+        _add_split(parser)
+        defaults = ContinualConfig()
+        parser.add_argument("--memory", type=int, default=defaults.memory, help="N_m")
+        parser.add_argument("--batch", type=int, default=defaults.batch, help="n_B")
+        parser.add_argument("--init", type=int, default=defaults.init, help="points of model 0")
+        parser.add_argument("--strategy", choices=STRATEGIES, default=defaults.strategy)
+        parser.add_argument("--epochs-per-update", type=int, default=defaults.epochs_per_update)
+        parser.add_argument("--out", required=True, help="final model snapshot (.safetensors)")
+        add_json_flag(parser)
+
+    def take_action(self, args: argparse.Namespace) -> int:
+        ds = read_dataset(args.data)
+        cfg = ContinualConfig(
+            memory=args.memory,
+            batch=args.batch,
+            init=args.init,
+            strategy=args.strategy,
+            epochs_per_update=args.epochs_per_update,
+            seed=args.seed,
+        )
+        n_updates = 1 + -(
+            -max(0, round(len(ds) * (1 - args.test_fraction)) - cfg.init) // cfg.batch
+        )
+        with tqdm(total=n_updates, desc="continual", unit="update", file=sys.stderr) as bar:
+            result = continual_on_dataset(
+                ds,
+                cfg,
+                test_fraction=args.test_fraction,
+                seed=args.seed,
+                train_cfg=TrainConfig(seed=args.seed),
+                on_update=lambda m: bar.update(),
+                out=args.out,
+            )
+        csv_path, png_path = curve_paths(args.out)
+        test = result.test.to_dict() if result.test else {}
+        out = {
+            "model": args.out,
+            "curve_csv": str(csv_path),
+            "curve_png": str(png_path),
+            "updates": len(result.updates),
+            "train_time_s": result.total_time_s,
+            "test": test,
+        }
+        text = (
+            f"model -> {args.out}; curve -> {csv_path}, {png_path} ({len(result.updates)} "
+            f"updates, {result.total_time_s:.1f} s training)"
+        )
+        if test:
+            text += "\n" + _report_text("test", test)
+        emit(out, args.json, text)
+        return 0
+
+
+class Evaluate(Command):
+    name = "evaluate"
+    help = "accuracy and interval calibration of a model snapshot on a dataset"
+
+    def add_arguments(self, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--model", required=True, help="model snapshot (.safetensors)")
+        parser.add_argument("--data", required=True, help="dataset file (.parquet or .csv)")
+        add_json_flag(parser)
+
+    def take_action(self, args: argparse.Namespace) -> int:
+        report = evaluate_on_dataset(load_snapshot(args.model), read_dataset(args.data)).to_dict()
+        emit(report, args.json, _report_text(f"{args.data} ({report['n']} points)", report))
+        return 0
+
+
+class ExperimentPaper(Command):
+    name = "experiment paper"
+    help = "the reference study: feature ablation, training-set size, continual vs batch, SGPR"
+
+    def add_arguments(self, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--data", required=True, help="dataset file (.parquet or .csv)")
+        parser.add_argument("--out", default="paper_study", help="folder for table and plots")
+        parser.add_argument("--seed", type=int, default=0)
+        parser.add_argument("--quick", action="store_true", help="small grid, few epochs")
+        add_json_flag(parser)
+
+    def take_action(self, args: argparse.Namespace) -> int:
+        ds = read_dataset(args.data)
+        cfg = StudyConfig.quick(seed=args.seed) if args.quick else StudyConfig(seed=args.seed)
+        with tqdm(total=cfg.n_runs, desc="experiment", unit="run", file=sys.stderr) as bar:
+            study = run_paper_study(ds, cfg, args.out, on_run=lambda name: bar.update())
+        emit(study.to_dict(), args.json, study.markdown)
+        return 0
+
+
+COMMANDS: tuple[type[Command], ...] = (Train, Continual, Evaluate, ExperimentPaper)

@@ -1,0 +1,116 @@
+"""Learner accuracy on the simulated paper campaign (90/10 split): batch, continual max-error
+replay (N_m=500, n_B=100), naive fine-tuning, interval coverage and the epistemic ratio.
+
+    .venv/bin/python bench/learner_paper.py [--data /tmp/paper.parquet]
+"""
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from kinematics.dataset import read_dataset
+from learner.config import ContinualConfig, ModelConfig, TrainConfig
+from learner.continual import ContinualLearner
+from learner.metrics import accuracy_report
+from learner.model import ErrorModel
+from learner.workflow import prepare
+
+
+def continual(p, strategy, train):
+    model = ErrorModel.create(p.spec, ModelConfig(), TrainConfig(), 0, p.robot)
+    learner = ContinualLearner(model, ContinualConfig(memory=500, batch=100, strategy=strategy))
+    start = time.perf_counter()
+    learner.initialize(p.X[train[:50]], p.Y[train[:50]])
+    early = None
+    for i in range(50, len(train), 100):
+        learner.update(p.X[train[i : i + 100]], p.Y[train[i : i + 100]])
+        if early is None and i + 100 >= 550:  # the first 550 points seen
+            early_model_err = accuracy_report(learner.model, p.X[train[:550]], p.Y[train[:550]])
+            early = early_model_err.mean_mm
+    wall = time.perf_counter() - start
+    rep = accuracy_report(learner.model, p.X[p.test], p.Y[p.test])
+    first = accuracy_report(learner.model, p.X[train[:550]], p.Y[train[:550]])
+    return rep, wall, early, first.mean_mm
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--data", default="/tmp/paper.parquet")
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    if not Path(args.data).exists():
+        subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "stream.cli",
+                "sim",
+                "dataset",
+                "--scenario",
+                "paper",
+                "--n",
+                "3004",
+                "--seed",
+                "0",
+                "--out",
+                args.data,
+            ],
+            check=True,
+        )
+    ds = read_dataset(args.data)
+    p = prepare(ds, test_fraction=0.1, seed=0)
+    out = {
+        "noise_floor_mm": 1e3 * ds.meta.noise_floor_m,
+        "uncalibrated_test_mean_mm": float(np.linalg.norm(p.Y[p.test, :3], axis=1).mean() * 1e3),
+    }
+    start = time.perf_counter()
+    batch = ErrorModel.create(p.spec, ModelConfig(), TrainConfig(), 0, p.robot)
+    rep = batch.fit(p.X[p.train], p.Y[p.train])
+    out["batch"] = accuracy_report(batch, p.X[p.test], p.Y[p.test]).to_dict()
+    out["batch"] |= {
+        "train_s": time.perf_counter() - start,
+        "epochs": rep.epochs,
+        "n_weights": batch.n_weights,
+    }
+    print(json.dumps({"batch": out["batch"]}), flush=True)
+    train = np.sort(p.train)
+    for strategy in ("max_error", "naive"):
+        r, wall, early, first = continual(p, strategy, train)
+        out[strategy] = r.to_dict() | {
+            "wall_s": wall,
+            "first550_after_550_mm": early,
+            "first550_at_end_mm": first,
+        }
+        print(json.dumps({strategy: out[strategy]}), flush=True)
+    # Epistemic: train on q1 < 0, compare the other half with held-out points of this half.
+    q1 = p.X[:, 0]
+    left = np.flatnonzero(q1 < 0)
+    rng = np.random.default_rng(0)
+    rng.shuffle(left)
+    held, fit_idx = left[:200], left[200:]
+    right = np.flatnonzero(q1 >= 0)
+    half = ErrorModel.create(p.spec, ModelConfig(), TrainConfig(), 0, p.robot)
+    half.fit(p.X[fit_idx], p.Y[fit_idx])
+    ep_in = half.predict(p.X[held]).epistemic()[:, :3].mean()
+    ep_out = half.predict(p.X[right]).epistemic()[:, :3].mean()
+    out["epistemic"] = {
+        "in_mean_var": float(ep_in),
+        "out_mean_var": float(ep_out),
+        "ratio_var": float(ep_out / ep_in),
+        "ratio_std": float(np.sqrt(ep_out / ep_in)),
+        "n_train": len(fit_idx),
+        "n_held": len(held),
+        "n_other": len(right),
+    }
+    print(json.dumps({"epistemic": out["epistemic"]}), flush=True)
+    print(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,119 @@
+"""Configurations of the learner: network shape, batch training and continual learning.
+
+Frozen ``kw_only`` dataclasses validated on construction; the defaults were picked by
+measurement on the simulated paper campaign (see BENCHMARKS_parts/learner.md).
+
+>>> ModelConfig(hidden_layers=2, neurons=64).activation
+'gelu'
+>>> ContinualConfig(strategy="lru")  # doctest: +ELLIPSIS
+Traceback (most recent call last):
+...
+kinematics.errors.ConfigError: continual.strategy must be one of (...), got 'lru'
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from kinematics.errors import ConfigError
+
+ACTIVATIONS = ("elu", "relu", "gelu")
+STRATEGIES = ("max_error", "naive", "reservoir", "full")
+
+
+def _check(cond: bool, msg: str) -> None:
+    if not cond:
+        raise ConfigError(msg)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ModelConfig:
+    """Shape of each of the six per-component MLPs."""
+
+    hidden_layers: int = 3
+    neurons: int = 64
+    activation: str = "gelu"
+    dropout: float = 0.0
+
+    def __post_init__(self) -> None:
+        _check(
+            isinstance(self.hidden_layers, int) and 1 <= self.hidden_layers <= 32,
+            f"model.hidden_layers must be an int in [1, 32], got {self.hidden_layers!r}",
+        )
+        _check(
+            isinstance(self.neurons, int) and 1 <= self.neurons <= 4096,
+            f"model.neurons must be an int in [1, 4096], got {self.neurons!r}",
+        )
+        _check(
+            self.activation in ACTIVATIONS,
+            f"model.activation must be one of {ACTIVATIONS}, got {self.activation!r}",
+        )
+        _check(0.0 <= self.dropout < 1.0, f"model.dropout must be in [0, 1), got {self.dropout}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrainConfig:
+    """Batch training: Adam, weight decay, lr × 0.75 after ``patience_lr`` epochs without
+    validation improvement, early stopping after ``early_stop_patience``, best weights kept.
+    ``lam`` weighs the evidence regulariser; ``val_fraction`` is split off when no validation
+    set is given (0 trains all ``max_epochs`` on everything and keeps the last weights)."""
+
+    batch_size: int = 64
+    lr: float = 3e-3
+    weight_decay: float = 1e-5
+    max_epochs: int = 1500
+    patience_lr: int = 30
+    early_stop_patience: int = 80
+    lam: float = 0.01
+    val_fraction: float = 0.1
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        _check(
+            isinstance(self.batch_size, int) and self.batch_size >= 1,
+            f"train.batch_size must be an int >= 1, got {self.batch_size!r}",
+        )
+        _check(0.0 < self.lr < 1.0, f"train.lr must be in (0, 1), got {self.lr}")
+        _check(
+            0.0 <= self.weight_decay < 1.0,
+            f"train.weight_decay must be in [0, 1), got {self.weight_decay}",
+        )
+        for key in ("max_epochs", "patience_lr", "early_stop_patience"):
+            value = getattr(self, key)
+            _check(
+                isinstance(value, int) and value >= 1,
+                f"train.{key} must be an int >= 1, got {value!r}",
+            )
+        _check(self.lam >= 0.0, f"train.lam must be >= 0, got {self.lam}")
+        _check(
+            0.0 <= self.val_fraction < 1.0,
+            f"train.val_fraction must be in [0, 1), got {self.val_fraction}",
+        )
+        _check(isinstance(self.seed, int), f"train.seed must be an int, got {self.seed!r}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ContinualConfig:
+    """Continual learning: memory ``N_m``, batch ``n_B``, ``init`` points for the first model,
+    the replay ``strategy`` and the epochs of warm-started training after each batch."""
+
+    memory: int = 500
+    batch: int = 100
+    init: int = 50
+    strategy: str = "max_error"
+    epochs_per_update: int = 60
+    init_epochs: int = 300
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for key in ("memory", "batch", "init", "epochs_per_update", "init_epochs"):
+            value = getattr(self, key)
+            _check(
+                isinstance(value, int) and value >= 1,
+                f"continual.{key} must be an int >= 1, got {value!r}",
+            )
+        _check(
+            self.strategy in STRATEGIES,
+            f"continual.strategy must be one of {STRATEGIES}, got {self.strategy!r}",
+        )
+        _check(isinstance(self.seed, int), f"continual.seed must be an int, got {self.seed!r}")

@@ -1,0 +1,223 @@
+"""Continual learning by max-error replay (DESIGN.md) and its baselines, one batch at a time.
+
+Each :meth:`ContinualLearner.update` predicts memory ∪ new batch with the current model, ranks
+the pool by the Euclidean norm of the prediction error (in standardised label units, so
+position and orientation count alike), lets the replay strategy pick the new memory and trains
+the model warm-started on it. The interval scale is recalibrated on each new batch before the
+model trains on it (prequentially: on data it has not seen). Until ``init`` points have
+arrived, updates only collect points; then the first model is trained on them.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from safetensors import SafetensorError
+from safetensors.numpy import load as np_load
+from safetensors.numpy import save as np_save
+
+from kinematics.errors import DatasetError, SnapshotError
+from learner.config import ContinualConfig
+from learner.model import ErrorModel, TrainReport
+from learner.replay import replay_strategy
+from learner.snapshot import snapshot_from_bytes, snapshot_to_bytes
+
+STATE_SCHEMA = "robocal.continual"
+
+
+@dataclass(frozen=True, kw_only=True)
+class UpdateMetrics:
+    """What one update did. Errors are position-error norms in mm: ``batch_*`` of the new
+    points before training (prequential), ``train_*`` of the memory after training."""
+
+    version: int
+    n_seen: int
+    n_new: int
+    memory_size: int
+    new_in_memory: int
+    epochs: int
+    train_time_s: float
+    batch_mean_mm: float
+    batch_max_mm: float
+    train_mean_mm: float
+    skipped_steps: int
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class Memory:
+    """The replay memory: features ``x`` (M, F) raw SI and labels ``y`` (M, 6)."""
+
+    x: np.ndarray
+    y: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.x.shape[0])
+
+
+class ContinualLearner:
+    """Learns one batch at a time with a fixed-size replay memory."""
+
+    def __init__(self, model: ErrorModel, cfg: ContinualConfig) -> None:
+        self.model = model
+        self.cfg = cfg
+        self.strategy = replay_strategy(cfg.strategy)
+        self.rng = np.random.default_rng(cfg.seed)
+        n_f = model.spec.n_features
+        self._mem_x = np.empty((0, n_f))
+        self._mem_y = np.empty((0, 6))
+        self.n_seen = 0
+        self.version = 0
+
+    @property
+    def memory(self) -> Memory:
+        return Memory(self._mem_x.copy(), self._mem_y.copy())
+
+    def initialize(self, X: np.ndarray, Y: np.ndarray) -> UpdateMetrics:
+        """Train the first model on ``X, Y`` (normally the first ``init`` points)."""
+        X, Y = self._check(X, Y)
+        self._mem_x, self._mem_y = X[-self.cfg.memory :], Y[-self.cfg.memory :]
+        self.n_seen = len(X)
+        start = time.perf_counter()
+        report = self.model.fit(X, Y, max_epochs=self.cfg.init_epochs)
+        self.version += 1
+        return self._metrics(len(X), len(self._mem_x), report, time.perf_counter() - start)
+
+    def update(self, X_new: np.ndarray, Y_new: np.ndarray) -> UpdateMetrics:
+        """Learn one batch: select the memory from memory ∪ batch, then train on it."""
+        X_new, Y_new = self._check(X_new, Y_new)
+        pool_x = np.concatenate([self._mem_x, X_new])
+        pool_y = np.concatenate([self._mem_y, Y_new])
+        if self.version == 0:
+            if len(pool_x) < self.cfg.init:
+                self._mem_x, self._mem_y, self.n_seen = pool_x, pool_y, len(pool_x)
+                return self._metrics(len(X_new), 0, None, 0.0)
+            return self.initialize(pool_x, pool_y)
+        pred = self.model.predict(pool_x).gamma
+        self.model.calibrate(X_new, Y_new)  # the new batch is data the model has not seen yet
+        errors = np.linalg.norm((pred - pool_y) / self.model.label_std, axis=1)
+        keep = self.strategy.select(
+            errors, self.cfg.memory, self.rng, n_new=len(X_new), n_seen=self.n_seen
+        )
+        keep = np.sort(keep)
+        self._mem_x, self._mem_y = pool_x[keep], pool_y[keep]
+        self.n_seen += len(X_new)
+        start = time.perf_counter()
+        report = self.model.fit(
+            self._mem_x, self._mem_y, max_epochs=self.cfg.epochs_per_update, val_fraction=0.0
+        )
+        self.version += 1
+        new_kept = int(np.sum(keep >= len(pool_x) - len(X_new)))
+        batch_err = np.linalg.norm((pred - pool_y)[-len(X_new) :, :3], axis=1)
+        dt = time.perf_counter() - start
+        return self._metrics(len(X_new), new_kept, report, dt, batch_err)
+
+    def _metrics(
+        self,
+        n_new: int,
+        new_kept: int,
+        report: TrainReport | None,
+        dt: float,
+        batch_err: np.ndarray | None = None,
+    ) -> UpdateMetrics:
+        batch_err = np.full(1, np.nan) if batch_err is None else batch_err
+        train_mm = np.nan
+        if self.model.is_fitted and len(self._mem_x):
+            res = self.model.predict(self._mem_x).gamma - self._mem_y
+            train_mm = float(np.linalg.norm(res[:, :3], axis=1).mean() * 1e3)
+        return UpdateMetrics(
+            version=self.version,
+            n_seen=self.n_seen,
+            n_new=n_new,
+            memory_size=len(self._mem_x),
+            new_in_memory=new_kept,
+            epochs=0 if report is None else report.epochs,
+            train_time_s=dt,
+            batch_mean_mm=float(batch_err.mean() * 1e3),
+            batch_max_mm=float(batch_err.max() * 1e3),
+            train_mean_mm=train_mm,
+            skipped_steps=0 if report is None else report.skipped_steps,
+        )
+
+    def _check(self, X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        X = np.asarray(X, dtype=float)
+        Y = np.asarray(Y, dtype=float)
+        n_f = self.model.spec.n_features
+        if X.ndim != 2 or X.shape[1] != n_f:
+            raise DatasetError(f"batch features must have shape (N, {n_f}), got {X.shape}")
+        if Y.shape != (X.shape[0], 6):
+            raise DatasetError(f"batch labels must have shape ({X.shape[0]}, 6), got {Y.shape}")
+        if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
+            raise DatasetError("batch contains non-finite features or labels")
+        return X, Y
+
+    # -- persistence ---------------------------------------------------------------------------
+
+    def state_dict(self) -> dict:
+        """Everything a restart needs: memory, counters, rng state and the model snapshot."""
+        return {
+            "memory_x": self._mem_x.copy(),
+            "memory_y": self._mem_y.copy(),
+            "n_seen": self.n_seen,
+            "version": self.version,
+            "rng": self.rng.bit_generator.state,
+            "model": snapshot_to_bytes(self.model),
+        }
+
+    def load_state(self, state: dict) -> None:
+        """Continue from a :meth:`state_dict` (the model is replaced by the stored one)."""
+        try:
+            model = snapshot_from_bytes(state["model"])
+            mem_x = np.asarray(state["memory_x"], dtype=float)
+            mem_y = np.asarray(state["memory_y"], dtype=float)
+            n_seen, version = int(state["n_seen"]), int(state["version"])
+            rng_state = state["rng"]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise SnapshotError(f"continual state is incomplete: {exc}") from None
+        if model.feature_names != self.model.feature_names:
+            raise SnapshotError(
+                f"continual state features {model.feature_names} differ from the learner's "
+                f"{self.model.feature_names}"
+            )
+        self.model = model
+        self._mem_x, self._mem_y = mem_x, mem_y
+        self.n_seen, self.version = n_seen, version
+        self.rng.bit_generator.state = rng_state
+
+
+def state_to_bytes(state: dict) -> bytes:
+    """A :meth:`ContinualLearner.state_dict` as safetensors bytes (memory as tensors, the rest
+    as JSON metadata, the model snapshot hex-encoded)."""
+    meta = {
+        "schema": STATE_SCHEMA,
+        "n_seen": state["n_seen"],
+        "version": state["version"],
+        "rng": state["rng"],
+        "model": state["model"].hex(),
+    }
+    arrays = {k: np.ascontiguousarray(state[k]) for k in ("memory_x", "memory_y")}
+    return np_save(arrays, metadata={"robocal": json.dumps(meta)})
+
+
+def state_from_bytes(data: bytes) -> dict:
+    """Inverse of :func:`state_to_bytes`; a malformed blob raises :class:`SnapshotError`."""
+    try:
+        arrays = np_load(data)
+        header_len = int.from_bytes(data[:8], "little")
+        meta = json.loads(json.loads(data[8 : 8 + header_len])["__metadata__"]["robocal"])
+        if meta.get("schema") != STATE_SCHEMA:
+            raise SnapshotError(
+                f"state schema must be {STATE_SCHEMA!r}, got {meta.get('schema')!r}"
+            )
+        return {
+            **arrays,
+            **{k: meta[k] for k in ("n_seen", "version", "rng")},
+            "model": bytes.fromhex(meta["model"]),
+        }
+    except (SafetensorError, ValueError, KeyError, TypeError) as exc:
+        raise SnapshotError(f"continual state unreadable: {exc}") from None

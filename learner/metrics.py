@@ -1,0 +1,78 @@
+"""Accuracy and honesty of a model on labelled data, in human units (mm, arcmin, %).
+
+Position error is the norm of the position residual (mm); orientation error the norm of the
+rotation residual ``vec`` (≈ angle, arcmin). Coverage counts position components inside the
+Student-t interval; NLL is the mean predictive NLL of position components with labels in mm.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from learner.model import ErrorModel
+
+ARCMIN_PER_RAD = 180.0 * 60.0 / np.pi
+LEVELS = (0.68, 0.90, 0.95)
+
+
+@dataclass(frozen=True, kw_only=True)
+class AccuracyReport:
+    """Residual statistics after compensation and the interval calibration."""
+
+    n: int
+    mean_mm: float
+    std_mm: float
+    max_mm: float
+    p95_mm: float
+    mean_arcmin: float
+    uncalibrated_mean_mm: float
+    improvement_pct: float
+    coverage_68: float
+    coverage_90: float
+    coverage_95: float
+    interval_width_90_mm: float
+    nll: float
+
+    def to_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+def accuracy_report(
+    model: ErrorModel, X: np.ndarray, Y: np.ndarray, Y_uncalibrated: np.ndarray | None = None
+) -> AccuracyReport:
+    """Evaluate ``model`` on features ``X`` and labels ``Y`` (m, rad).
+
+    ``Y_uncalibrated`` (default ``Y``) is the error without compensation, the baseline of
+    ``improvement_pct = 100 (1 - mean_mm / uncalibrated_mean_mm)``.
+    """
+    Y = np.asarray(Y, dtype=float)
+    Y0 = Y if Y_uncalibrated is None else np.asarray(Y_uncalibrated, dtype=float)
+    ev = model.predict(X)
+    res = Y - ev.mean
+    pos = np.linalg.norm(res[:, :3], axis=1) * 1e3
+    rot = np.linalg.norm(res[:, 3:], axis=1) * ARCMIN_PER_RAD
+    base = float(np.linalg.norm(Y0[:, :3], axis=1).mean() * 1e3)
+    coverage = {}
+    for level in LEVELS:
+        lo, hi = ev.interval(level)
+        inside = (Y[:, :3] >= lo[:, :3]) & (Y[:, :3] <= hi[:, :3])
+        coverage[level] = float(inside.mean())
+    lo, hi = ev.interval(0.90)
+    nll_mm = ev.nll(Y)[:, :3] + np.log(1e3)  # density per mm instead of per m
+    return AccuracyReport(
+        n=len(Y),
+        mean_mm=float(pos.mean()),
+        std_mm=float(pos.std()),
+        max_mm=float(pos.max()),
+        p95_mm=float(np.percentile(pos, 95)),
+        mean_arcmin=float(rot.mean()),
+        uncalibrated_mean_mm=base,
+        improvement_pct=float(100.0 * (1.0 - pos.mean() / base)) if base > 0 else float("nan"),
+        coverage_68=coverage[0.68],
+        coverage_90=coverage[0.90],
+        coverage_95=coverage[0.95],
+        interval_width_90_mm=float((hi - lo)[:, :3].mean() * 1e3),
+        nll=float(nll_mm.mean()),
+    )

@@ -1,0 +1,300 @@
+"""``ErrorModel``: the pose-error estimator (network, fixed scalers, configs, feature names).
+
+Inputs are min-max scaled by the :class:`~learner.features.FeatureSpec` (fixed from the robot
+description); labels are standardised per component by a mean and std fixed on the model's
+first ``fit`` and never changed afterwards. Validation MSE is in these scaled label units
+(1.0 = the spread of the first training labels).
+
+>>> from kinematics.description import load_description
+>>> from learner.features import feature_spec
+>>> spec = feature_spec(load_description("ur10"), 0, False)
+>>> m = ErrorModel.create(spec, ModelConfig(hidden_layers=1, neurons=8), TrainConfig(), seed=0)
+>>> m.predict(np.zeros((2, 6))).gamma.shape
+(2, 6)
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from scipy import optimize, stats
+
+from kinematics.errors import DatasetError
+from learner.config import ModelConfig, TrainConfig
+from learner.ensemble import EvidentialEnsemble
+from learner.evidential import Evidential, evidential_loss
+from learner.features import FeatureSpec
+
+N_LABELS = 6
+#: Gradients are clipped to this total norm (scaled units); a non-finite norm skips the step.
+_MAX_GRAD_NORM = 100.0
+#: Fewest held-out points :meth:`ErrorModel.fit` calibrates the interval scale on.
+_MIN_CALIBRATION = 5
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrainReport:
+    """What one call of :meth:`ErrorModel.fit` did (val MSE in scaled label units)."""
+
+    epochs: int
+    best_epoch: int
+    best_val_mse: float
+    final_train_loss: float
+    final_lr: float
+    skipped_steps: int
+    train_time_s: float
+    val_mse_history: tuple[float, ...] = field(default=(), repr=False)
+
+
+class ErrorModel:
+    """Predicts the pose error ``(N, 6)`` with NIG uncertainty from raw SI features ``(N, F)``."""
+
+    def __init__(
+        self,
+        *,
+        spec: FeatureSpec,
+        model_cfg: ModelConfig,
+        train_cfg: TrainConfig,
+        seed: int,
+        robot: str = "",
+        label_mean: np.ndarray | None = None,
+        label_std: np.ndarray | None = None,
+        interval_scale: np.ndarray | None = None,
+    ) -> None:
+        self.spec = spec
+        self.model_cfg = model_cfg
+        self.train_cfg = train_cfg
+        self.seed = seed
+        self.robot = robot
+        self.label_mean = None if label_mean is None else np.asarray(label_mean, dtype=float)
+        self.label_std = None if label_std is None else np.asarray(label_std, dtype=float)
+        self.interval_scale = (
+            np.ones(N_LABELS) if interval_scale is None else np.asarray(interval_scale, dtype=float)
+        )
+        self.net = EvidentialEnsemble(
+            n_inputs=spec.n_features,
+            hidden_layers=model_cfg.hidden_layers,
+            neurons=model_cfg.neurons,
+            activation=model_cfg.activation,
+            dropout=model_cfg.dropout,
+            n_heads=N_LABELS,
+            seed=seed,
+        )
+        self.skipped_steps = 0
+        self.metrics: dict[str, float] = {}
+
+    @classmethod
+    def create(
+        cls,
+        spec: FeatureSpec,
+        model_cfg: ModelConfig,
+        train_cfg: TrainConfig,
+        seed: int,
+        robot: str = "",
+    ) -> ErrorModel:
+        """A fresh, untrained model (weights drawn from ``seed``)."""
+        return cls(spec=spec, model_cfg=model_cfg, train_cfg=train_cfg, seed=seed, robot=robot)
+
+    @property
+    def feature_names(self) -> tuple[str, ...]:
+        return self.spec.names
+
+    @property
+    def n_weights(self) -> int:
+        return self.net.n_weights
+
+    @property
+    def is_fitted(self) -> bool:
+        return self.label_mean is not None
+
+    # -- scaling -------------------------------------------------------------------------------
+
+    def scale_x(self, X: np.ndarray) -> torch.Tensor:
+        """Raw features -> scaled float32 tensor (raises DatasetError on a wrong shape)."""
+        return torch.as_tensor(self.spec.scale(X), dtype=torch.float32)
+
+    def scale_y(self, Y: np.ndarray) -> torch.Tensor:
+        """Labels (m, rad) -> standardised float32 tensor."""
+        Y = _check_labels(Y)
+        return torch.as_tensor((Y - self.label_mean) / self.label_std, dtype=torch.float32)
+
+    def _ensure_label_scaler(self, Y: np.ndarray) -> None:
+        if self.label_mean is None:
+            Y = _check_labels(Y)
+            self.label_mean = Y.mean(axis=0)
+            std = Y.std(axis=0)
+            self.label_std = np.where(std > 1e-12, std, 1.0)
+
+    # -- prediction ----------------------------------------------------------------------------
+
+    def predict_scaled(self, Xs: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """NIG outputs in scaled label units for scaled features (no grad, eval mode)."""
+        self.net.eval()
+        with torch.inference_mode():
+            return self.net(Xs)
+
+    def predict(self, X: np.ndarray) -> Evidential:
+        """NIG prediction in label units (m, rad) for raw SI features ``(N, F)``."""
+        gamma, nu, alpha, beta = (t.double().numpy() for t in self.predict_scaled(self.scale_x(X)))
+        mean = np.zeros(N_LABELS) if self.label_mean is None else self.label_mean
+        std = np.ones(N_LABELS) if self.label_std is None else self.label_std
+        beta = beta * (std * self.interval_scale) ** 2
+        return Evidential(gamma=mean + std * gamma, nu=nu, alpha=alpha, beta=beta)
+
+    def calibrate(self, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+        """Fit the per-component factor on the Student-t scale that minimises the predictive
+        NLL of held-out ``(X, Y)`` (``beta`` is multiplied by its square); returns it.
+
+        Networks trained on few points are over-confident on new ones; this one scalar per
+        component, fitted on data the weights never saw, makes the intervals honest.
+        """
+        Y = _check_labels(Y)
+        self.interval_scale = np.ones(N_LABELS)
+        ev = self.predict(X)
+        z = (Y - ev.gamma) / ev.scale()
+        df = 2.0 * ev.alpha
+        scale = np.ones(N_LABELS)
+        for c in range(N_LABELS):
+
+            def nll(log_s: float, c: int = c) -> float:
+                return float(np.sum(-stats.t.logpdf(z[:, c] * np.exp(-log_s), df[:, c]) + log_s))
+
+            scale[c] = np.exp(optimize.minimize_scalar(nll, bounds=(-7.0, 7.0), method="bounded").x)
+        self.interval_scale = scale
+        return scale
+
+    # -- training ------------------------------------------------------------------------------
+
+    def fit(
+        self,
+        X: np.ndarray,
+        Y: np.ndarray,
+        X_val: np.ndarray | None = None,
+        Y_val: np.ndarray | None = None,
+        on_epoch: Callable[[int, float], None] | None = None,
+        *,
+        max_epochs: int | None = None,
+        val_fraction: float | None = None,
+    ) -> TrainReport:
+        """Train (warm-started from the current weights) with Adam and the evidential loss.
+
+        Without ``X_val`` a ``val_fraction`` of ``X`` is held out for the lr schedule and early
+        stopping; the best weights by validation MSE are kept and the interval scale is
+        calibrated on the validation set (:meth:`calibrate`). ``on_epoch(epoch, val_mse)`` runs
+        after every epoch (val MSE in scaled label units, train loss when no validation) and may
+        raise to stop training (e.g. ``optuna.TrialPruned``); the exception propagates.
+        ``max_epochs`` and ``val_fraction`` override the train config for this call.
+        """
+        cfg = self.train_cfg
+        X = np.asarray(X, dtype=float)
+        Y = _check_labels(Y)
+        if X.shape[0] != Y.shape[0]:
+            raise DatasetError(f"features and labels differ in rows: {X.shape[0]} vs {Y.shape[0]}")
+        if X.shape[0] == 0:
+            raise DatasetError("cannot fit on 0 points")
+        gen = torch.Generator().manual_seed(cfg.seed + self.seed)
+        frac = cfg.val_fraction if val_fraction is None else val_fraction
+        if X_val is None and frac > 0 and X.shape[0] >= 10:
+            order = torch.randperm(X.shape[0], generator=gen).numpy()
+            n_val = max(1, round(frac * X.shape[0]))
+            X, Y, X_val, Y_val = (
+                X[order[n_val:]],
+                Y[order[n_val:]],
+                X[order[:n_val]],
+                Y[order[:n_val]],
+            )
+        self._ensure_label_scaler(Y)
+        Xs, Ys = self.scale_x(X), self.scale_y(Y)
+        val = None if X_val is None else (self.scale_x(X_val), self.scale_y(Y_val))
+        report = _train_loop(self, Xs, Ys, val, gen, max_epochs or cfg.max_epochs, on_epoch)
+        if X_val is not None and len(X_val) >= _MIN_CALIBRATION:
+            self.calibrate(X_val, Y_val)
+        return report
+
+
+def _train_loop(
+    model: ErrorModel,
+    Xs: torch.Tensor,
+    Ys: torch.Tensor,
+    val: tuple[torch.Tensor, torch.Tensor] | None,
+    gen: torch.Generator,
+    max_epochs: int,
+    on_epoch: Callable[[int, float], None] | None,
+) -> TrainReport:
+    """Mini-batch Adam; a step whose loss or gradient is not finite is skipped and counted."""
+    cfg = model.train_cfg
+    net = model.net
+    params = list(net.parameters())
+    opt = torch.optim.Adam(params, lr=cfg.lr, weight_decay=cfg.weight_decay, foreach=True)
+    sched = torch.optim.lr_scheduler.ReduceLROnPlateau(
+        opt, mode="min", factor=0.75, patience=cfg.patience_lr
+    )
+    start = time.perf_counter()
+    n = Xs.shape[0]
+    bs = min(cfg.batch_size, n)
+    best, best_epoch, best_state = float("inf"), 0, None
+    history: list[float] = []
+    skipped = 0
+    epoch_loss = float("nan")
+    epoch = 0
+    for epoch in range(1, max_epochs + 1):
+        net.train()
+        perm = torch.randperm(n, generator=gen)
+        total, count = 0.0, 0
+        for i in range(0, n, bs):
+            idx = perm[i : i + bs]
+            gamma, nu, alpha, beta = net(Xs[idx])
+            loss = evidential_loss(Ys[idx], gamma, nu, alpha, beta, cfg.lam)
+            opt.zero_grad(set_to_none=True)
+            if not torch.isfinite(loss):
+                skipped += 1
+                continue
+            loss.backward()
+            if not torch.isfinite(torch.nn.utils.clip_grad_norm_(params, _MAX_GRAD_NORM)):
+                skipped += 1
+                continue
+            opt.step()
+            total += float(loss.detach()) * idx.numel()
+            count += idx.numel()
+        epoch_loss = total / count if count else float("nan")
+        if val is not None:
+            score = float(((model.predict_scaled(val[0])[0] - val[1]) ** 2).mean())
+        else:
+            score = epoch_loss
+        history.append(score)
+        if score < best:
+            best, best_epoch = score, epoch
+            if val is not None:
+                best_state = {k: v.detach().clone() for k, v in net.state_dict().items()}
+        sched.step(score if np.isfinite(score) else float("inf"))
+        if on_epoch is not None:
+            on_epoch(epoch, score)
+        if val is not None and epoch - best_epoch >= cfg.early_stop_patience:
+            break
+    if best_state is not None:
+        net.load_state_dict(best_state)
+    model.skipped_steps += skipped
+    net.eval()
+    return TrainReport(
+        epochs=epoch,
+        best_epoch=best_epoch,
+        best_val_mse=best,
+        final_train_loss=epoch_loss,
+        final_lr=opt.param_groups[0]["lr"],
+        skipped_steps=skipped,
+        train_time_s=time.perf_counter() - start,
+        val_mse_history=tuple(history),
+    )
+
+
+def _check_labels(Y: np.ndarray) -> np.ndarray:
+    Y = np.asarray(Y, dtype=float)
+    if Y.ndim != 2 or Y.shape[1] != N_LABELS:
+        raise DatasetError(f"labels must have shape (N, {N_LABELS}), got {Y.shape}")
+    if not np.all(np.isfinite(Y)):
+        raise DatasetError(f"labels row {np.argwhere(~np.isfinite(Y))[0, 0]}: not finite")
+    return Y

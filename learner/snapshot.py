@@ -1,0 +1,148 @@
+"""Model snapshots: safetensors weights plus JSON metadata, never pickle.
+
+The metadata (under the safetensors header key ``robocal``) holds the schema version, robot,
+feature names, model/train configs, seed and training metrics; the tensors hold the network
+weights and the fixed scalers (float64, so predictions after a reload are bit-identical).
+
+>>> from kinematics.description import load_description
+>>> from learner.config import ModelConfig, TrainConfig
+>>> from learner.features import feature_spec
+>>> spec = feature_spec(load_description("ur10"), 0, False)
+>>> m = ErrorModel.create(spec, ModelConfig(hidden_layers=1, neurons=8), TrainConfig(), seed=0)
+>>> snapshot_from_bytes(snapshot_to_bytes(m)).feature_names == m.feature_names
+True
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load as st_load
+from safetensors.torch import save as st_save
+
+from kinematics.errors import RobocalError, SnapshotError
+from learner.config import ModelConfig, TrainConfig
+from learner.features import FeatureSpec
+from learner.model import ErrorModel
+
+SCHEMA = "robocal.model"
+SCHEMA_VERSION = 1
+_META_KEY = "robocal"
+_SCALERS = ("feature_low", "feature_high", "label_mean", "label_std", "interval_scale")
+
+
+def snapshot_to_bytes(model: ErrorModel, extra_meta: dict | None = None) -> bytes:
+    """The model as safetensors bytes with JSON metadata (``extra_meta`` stored alongside)."""
+    if not model.is_fitted:
+        mean, std = np.zeros(6), np.ones(6)
+    else:
+        mean, std = model.label_mean, model.label_std
+    tensors = {f"net.{k}": v.detach().contiguous() for k, v in model.net.state_dict().items()}
+    scalers = (model.spec.low, model.spec.high, mean, std, model.interval_scale)
+    for key, value in zip(_SCALERS, scalers, strict=True):
+        tensors[key] = torch.as_tensor(np.asarray(value, dtype=np.float64))
+    meta = {
+        "schema": SCHEMA,
+        "version": SCHEMA_VERSION,
+        "robot": model.robot,
+        "feature_names": list(model.feature_names),
+        "model_config": asdict(model.model_cfg),
+        "train_config": asdict(model.train_cfg),
+        "seed": model.seed,
+        "fitted": model.is_fitted,
+        "metrics": model.metrics,
+        "extra": extra_meta or {},
+    }
+    try:
+        text = json.dumps(meta, sort_keys=True, allow_nan=False)
+    except (TypeError, ValueError) as exc:
+        raise SnapshotError(f"snapshot metadata is not JSON-serialisable: {exc}") from None
+    return st_save(tensors, metadata={_META_KEY: text})
+
+
+def snapshot_meta(data: bytes) -> dict:
+    """The JSON metadata of a snapshot without building the model."""
+    try:
+        header_len = int.from_bytes(data[:8], "little")
+        header = json.loads(data[8 : 8 + header_len])
+        meta = json.loads(header["__metadata__"][_META_KEY])
+    except (ValueError, KeyError, TypeError, IndexError) as exc:
+        raise SnapshotError(f"not a robocal snapshot (bad safetensors header: {exc})") from None
+    if meta.get("schema") != SCHEMA:
+        raise SnapshotError(f"snapshot schema must be {SCHEMA!r}, got {meta.get('schema')!r}")
+    if meta.get("version") != SCHEMA_VERSION:
+        raise SnapshotError(
+            f"snapshot version must be {SCHEMA_VERSION}, got {meta.get('version')!r}"
+        )
+    return meta
+
+
+def snapshot_from_bytes(data: bytes) -> ErrorModel:
+    """Rebuild an :class:`ErrorModel` from :func:`snapshot_to_bytes` output."""
+    meta = snapshot_meta(data)
+    try:
+        tensors = st_load(data)
+    except (SafetensorError, ValueError) as exc:
+        raise SnapshotError(f"snapshot tensors unreadable: {exc}") from None
+    missing = [k for k in _SCALERS if k not in tensors]
+    if missing:
+        raise SnapshotError(f"snapshot lacks tensor(s) {', '.join(missing)}")
+    try:
+        spec = FeatureSpec(
+            names=tuple(meta["feature_names"]),
+            low=tensors["feature_low"].numpy(),
+            high=tensors["feature_high"].numpy(),
+        )
+        model = ErrorModel(
+            spec=spec,
+            model_cfg=ModelConfig(**meta["model_config"]),
+            train_cfg=TrainConfig(**meta["train_config"]),
+            seed=int(meta["seed"]),
+            robot=str(meta["robot"]),
+            label_mean=tensors["label_mean"].numpy() if meta["fitted"] else None,
+            label_std=tensors["label_std"].numpy() if meta["fitted"] else None,
+            interval_scale=tensors["interval_scale"].numpy(),
+        )
+        state = {k[len("net.") :]: v for k, v in tensors.items() if k.startswith("net.")}
+        model.net.load_state_dict(state, strict=True)
+    except (KeyError, TypeError, RuntimeError, RobocalError) as exc:
+        raise SnapshotError(
+            f"snapshot does not match its metadata: {exc}".splitlines()[0]
+        ) from None
+    model.metrics = dict(meta.get("metrics", {}))
+    model.net.eval()
+    return model
+
+
+def save_snapshot(model: ErrorModel, path: str | Path, extra_meta: dict | None = None) -> Path:
+    """Write the snapshot to ``path`` atomically (temporary file, then rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    data = snapshot_to_bytes(model, extra_meta)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def load_snapshot(path: str | Path) -> ErrorModel:
+    """Read a snapshot file; a missing or malformed file raises :class:`SnapshotError`."""
+    path = Path(path)
+    if not path.is_file():
+        raise SnapshotError(f"{path}: no such model snapshot")
+    try:
+        return snapshot_from_bytes(path.read_bytes())
+    except SnapshotError as exc:
+        raise SnapshotError(f"{path}: {exc}") from None

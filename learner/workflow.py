@@ -1,0 +1,181 @@
+"""Dataset-level workflows behind the CLI: batch training, continual streaming, evaluation.
+
+Each takes a :class:`~kinematics.dataset.Dataset`, builds features and labels against the
+nominal model (with the dataset's ``T_6_S`` when known), splits off a seeded test set and
+returns a typed result; files are written only where a path is given.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from kinematics.dataset import Dataset
+from kinematics.description import RobotDescription, load_description
+from kinematics.errors import ConfigError, DatasetError
+from kinematics.model import RobotModel
+from learner.config import ContinualConfig, ModelConfig, TrainConfig
+from learner.continual import ContinualLearner, UpdateMetrics
+from learner.features import FeatureSpec, dataset_feature_spec, dataset_features, dataset_labels
+from learner.metrics import AccuracyReport, accuracy_report
+from learner.model import ErrorModel, TrainReport
+from learner.plots import write_learning_curve
+from learner.snapshot import save_snapshot
+
+
+@dataclass(frozen=True, kw_only=True)
+class Prepared:
+    """Features, labels and the seeded train/test split of one dataset."""
+
+    spec: FeatureSpec
+    robot: str
+    X: np.ndarray
+    Y: np.ndarray
+    train: np.ndarray
+    test: np.ndarray
+
+
+def nominal_description(ds: Dataset) -> RobotDescription:
+    """The dataset's robot description, with its ``T_6_S`` when the metadata knows it."""
+    desc = load_description(ds.meta.robot)
+    return desc if ds.meta.T_6_S is None else desc.with_tool(np.asarray(ds.meta.T_6_S))
+
+
+def prepare(
+    ds: Dataset,
+    *,
+    test_fraction: float = 0.1,
+    seed: int = 0,
+    secondary: bool = True,
+    temperatures: bool = True,
+    spec: FeatureSpec | None = None,
+) -> Prepared:
+    """Features (all the dataset has, or a subset), labels and a random split."""
+    if not 0.0 <= test_fraction < 1.0:
+        raise ConfigError(f"test_fraction must be in [0, 1), got {test_fraction}")
+    desc = nominal_description(ds)
+    spec = spec or dataset_feature_spec(ds, desc, secondary=secondary, temperatures=temperatures)
+    X = dataset_features(ds, spec)
+    Y = dataset_labels(ds, RobotModel(desc))
+    order = np.random.default_rng(seed).permutation(len(ds))
+    n_test = round(test_fraction * len(ds))
+    if len(ds) - n_test < 10:
+        raise DatasetError(f"need at least 10 training points, got {len(ds) - n_test}")
+    return Prepared(
+        spec=spec, robot=desc.name, X=X, Y=Y, train=order[n_test:], test=np.sort(order[:n_test])
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrainResult:
+    model: ErrorModel
+    report: TrainReport
+    test: AccuracyReport | None
+    n_train: int
+
+
+def train_on_dataset(
+    ds: Dataset,
+    *,
+    test_fraction: float = 0.1,
+    seed: int = 0,
+    model_cfg: ModelConfig | None = None,
+    train_cfg: TrainConfig | None = None,
+    on_epoch: Callable[[int, float], None] | None = None,
+    out: str | Path | None = None,
+) -> TrainResult:
+    """Batch-train a model on the training split, report its test accuracy and save the
+    snapshot to ``out`` when given."""
+    p = prepare(ds, test_fraction=test_fraction, seed=seed)
+    model = ErrorModel.create(
+        p.spec, model_cfg or ModelConfig(), train_cfg or TrainConfig(seed=seed), seed, p.robot
+    )
+    report = model.fit(p.X[p.train], p.Y[p.train], on_epoch=on_epoch)
+    test = accuracy_report(model, p.X[p.test], p.Y[p.test]) if len(p.test) else None
+    model.metrics = {} if test is None else test.to_dict()
+    if out is not None:
+        save_snapshot(model, out, {"n_train": len(p.train), "epochs": report.epochs})
+    return TrainResult(model=model, report=report, test=test, n_train=len(p.train))
+
+
+@dataclass(frozen=True, kw_only=True)
+class ContinualResult:
+    """The final model and the learning curve: one row per update with test accuracy."""
+
+    model: ErrorModel
+    updates: list[UpdateMetrics]
+    curve: list[dict] = field(default_factory=list)
+    test: AccuracyReport | None = None
+    total_time_s: float = 0.0
+
+
+def continual_on_dataset(
+    ds: Dataset,
+    cfg: ContinualConfig,
+    *,
+    test_fraction: float = 0.1,
+    seed: int = 0,
+    model_cfg: ModelConfig | None = None,
+    train_cfg: TrainConfig | None = None,
+    on_update: Callable[[UpdateMetrics], None] | None = None,
+    out: str | Path | None = None,
+) -> ContinualResult:
+    """Stream the training split in its recorded order through a :class:`ContinualLearner`
+    (``init`` points first, then batches of ``cfg.batch``), evaluating the test split after
+    every update. With ``out`` the final snapshot is saved there and the learning curve beside
+    it (``<out stem>.curve.csv`` and ``.curve.png``)."""
+    p = prepare(ds, test_fraction=test_fraction, seed=seed)
+    train = np.sort(p.train)
+    model = ErrorModel.create(
+        p.spec, model_cfg or ModelConfig(), train_cfg or TrainConfig(seed=seed), seed, p.robot
+    )
+    learner = ContinualLearner(model, cfg)
+    Xtr, Ytr = p.X[train], p.Y[train]
+    Xte, Yte = p.X[p.test], p.Y[p.test]
+    updates, curve = [], []
+    steps = [(0, cfg.init)] + [(i, i + cfg.batch) for i in range(cfg.init, len(train), cfg.batch)]
+    for start, stop in steps:
+        if start == 0:
+            m = learner.initialize(Xtr[:stop], Ytr[:stop])
+        else:
+            m = learner.update(Xtr[start:stop], Ytr[start:stop])
+        updates.append(m)
+        row = {**m.to_dict()}
+        if len(Xte):
+            row.update(accuracy_report(learner.model, Xte, Yte).to_dict())
+        curve.append(row)
+        if on_update is not None:
+            on_update(m)
+    test = accuracy_report(learner.model, Xte, Yte) if len(Xte) else None
+    learner.model.metrics = {} if test is None else test.to_dict()
+    result = ContinualResult(
+        model=learner.model,
+        updates=updates,
+        curve=curve,
+        test=test,
+        total_time_s=float(sum(u.train_time_s for u in updates)),
+    )
+    if out is not None:
+        out = Path(out)
+        save_snapshot(learner.model, out, {"strategy": cfg.strategy, "n_seen": learner.n_seen})
+        title = f"{cfg.strategy}: N_m={cfg.memory}, n_B={cfg.batch}"
+        write_learning_curve(curve, curve_paths(out), title)
+    return result
+
+
+def curve_paths(out: str | Path) -> tuple[Path, Path]:
+    """The learning-curve CSV and PNG written beside a model file."""
+    out = Path(out)
+    stem = out.with_suffix("")
+    return stem.with_name(stem.name + ".curve.csv"), stem.with_name(stem.name + ".curve.png")
+
+
+def evaluate_on_dataset(model: ErrorModel, ds: Dataset) -> AccuracyReport:
+    """Accuracy of a trained model on every point of ``ds`` (features by the model's names)."""
+    if ds.meta.robot != model.robot and model.robot:
+        raise DatasetError(f"model is for robot {model.robot!r}, dataset is {ds.meta.robot!r}")
+    p = prepare(ds, test_fraction=0.0, spec=model.spec)
+    return accuracy_report(model, p.X, p.Y)

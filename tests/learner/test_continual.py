@@ -1,0 +1,133 @@
+import numpy as np
+import pytest
+
+from kinematics.errors import DatasetError, SnapshotError
+from learner.config import ContinualConfig, ModelConfig, TrainConfig
+from learner.continual import ContinualLearner, state_from_bytes, state_to_bytes
+from learner.features import FeatureSpec
+from learner.model import ErrorModel
+
+SPEC = FeatureSpec(names=("q1", "q2"), low=np.array([-1.0, -1.0]), high=np.array([1.0, 1.0]))
+
+
+def _target(X):
+    k = np.arange(6)
+    return 1e-3 * np.sin(3 * X[:, :1] + k) * np.cos(2 * X[:, 1:2] - k) + 1e-3 * X[:, :1] ** 2
+
+
+def _region(rng, n, lo, hi):
+    X = np.column_stack([rng.uniform(lo, hi, n), rng.uniform(-1, 1, n)])
+    return X, _target(X)
+
+
+def _learner(strategy, memory=100, batch=25, epochs=30, seed=0):
+    model = ErrorModel.create(
+        SPEC,
+        ModelConfig(hidden_layers=2, neurons=24),
+        TrainConfig(batch_size=32, lr=3e-3, max_epochs=150),
+        seed=seed,
+    )
+    cfg = ContinualConfig(
+        memory=memory,
+        batch=batch,
+        init=25,
+        strategy=strategy,
+        epochs_per_update=epochs,
+        init_epochs=150,
+    )
+    return ContinualLearner(model, cfg)
+
+
+def _stream(learner, X, Y, batch=25):
+    learner.initialize(X[:batch], Y[:batch])
+    return [learner.update(X[i : i + batch], Y[i : i + batch]) for i in range(batch, len(X), batch)]
+
+
+@pytest.fixture(scope="module")
+def two_regions():
+    rng = np.random.default_rng(0)
+    X1, Y1 = _region(rng, 100, -1, 0)
+    X2, Y2 = _region(rng, 100, 0, 1)
+    Xt, Yt = _region(rng, 200, -1, 0)
+    return np.concatenate([X1, X2]), np.concatenate([Y1, Y2]), Xt, Yt
+
+
+def test_max_error_keeps_region_one_while_naive_forgets(two_regions):
+    X, Y, Xt, Yt = two_regions
+    errors = {}
+    for strategy in ("max_error", "naive"):
+        learner = _learner(strategy)
+        _stream(learner, X[:100], Y[:100])
+        before = np.abs(learner.model.predict(Xt).gamma - Yt).mean()
+        for i in range(100, 200, 25):
+            learner.update(X[i : i + 25], Y[i : i + 25])
+        after = np.abs(learner.model.predict(Xt).gamma - Yt).mean()
+        errors[strategy] = (before, after)
+    assert errors["max_error"][1] < 1.5 * errors["max_error"][0]
+    assert errors["naive"][1] > 3 * errors["naive"][0]
+    assert errors["naive"][1] > 3 * errors["max_error"][1]
+
+
+def test_memory_holds_the_largest_errors_and_its_size(two_regions):
+    X, Y, _, _ = two_regions
+    learner = _learner("max_error", memory=40, epochs=2)
+    learner.initialize(X[:25], Y[:25])
+    mem = learner.memory
+    pool_x = np.concatenate([mem.x, X[25:50]])
+    pool_y = np.concatenate([mem.y, Y[25:50]])
+    err = np.linalg.norm(
+        (learner.model.predict(pool_x).gamma - pool_y) / learner.model.label_std, axis=1
+    )
+    metrics = learner.update(X[25:50], Y[25:50])
+    assert metrics.memory_size == len(learner.memory) == 40
+    kept = {tuple(row) for row in learner.memory.x}
+    want = {tuple(row) for row in pool_x[np.argsort(-err)[:40]]}
+    assert kept == want
+    assert metrics.n_seen == 50 and metrics.version == 2
+
+
+@pytest.mark.parametrize(
+    "strategy, size", [("naive", 25), ("full", 75), ("reservoir", 40), ("max_error", 40)]
+)
+def test_every_strategy_runs_through_update(two_regions, strategy, size):
+    X, Y, _, _ = two_regions
+    learner = _learner(strategy, memory=40, epochs=1)
+    metrics = _stream(learner, X[:75], Y[:75])
+    assert metrics[-1].memory_size == size
+    assert np.isfinite(metrics[-1].batch_mean_mm) and np.isfinite(metrics[-1].train_mean_mm)
+
+
+def test_updates_before_init_collect_points(two_regions):
+    X, Y, _, _ = two_regions
+    learner = _learner("max_error", epochs=1)
+    first = learner.update(X[:10], Y[:10])
+    assert first.version == 0 and first.epochs == 0 and not learner.model.is_fitted
+    second = learner.update(X[10:30], Y[10:30])
+    assert second.version == 1 and learner.model.is_fitted and second.n_seen == 30
+
+
+def test_state_roundtrip_continues_identically(two_regions):
+    X, Y, _, _ = two_regions
+    a = _learner("reservoir", memory=30, epochs=2)
+    _stream(a, X[:75], Y[:75])
+    state = state_from_bytes(state_to_bytes(a.state_dict()))
+    b = _learner("reservoir", memory=30, epochs=2, seed=5)
+    b.load_state(state)
+    assert b.n_seen == a.n_seen and b.version == a.version
+    np.testing.assert_array_equal(b.memory.x, a.memory.x)
+    np.testing.assert_array_equal(b.model.predict(X[:5]).gamma, a.model.predict(X[:5]).gamma)
+    ma, mb = a.update(X[75:100], Y[75:100]), b.update(X[75:100], Y[75:100])
+    np.testing.assert_array_equal(a.memory.x, b.memory.x)
+    assert ma.memory_size == mb.memory_size
+
+
+def test_bad_batches_and_states_raise():
+    learner = _learner("max_error")
+    with pytest.raises(DatasetError, match="shape"):
+        learner.update(np.zeros((3, 5)), np.zeros((3, 6)))
+    with pytest.raises(DatasetError, match="non-finite"):
+        learner.update(np.full((3, 2), np.nan), np.zeros((3, 6)))
+    with pytest.raises(SnapshotError):
+        state_from_bytes(b"garbage")
+    with pytest.raises(SnapshotError, match="incomplete"):
+        learner.load_state({"n_seen": 1})

@@ -1,0 +1,94 @@
+import numpy as np
+import pytest
+import torch
+from scipy import stats
+
+from kinematics.errors import ConfigError
+from learner.evidential import Evidential, evidential_loss, nig_nll, nig_regularizer
+
+
+def _params(rng, n=50):
+    return (
+        rng.normal(size=n),
+        rng.normal(size=n),
+        rng.uniform(0.05, 5.0, n),
+        rng.uniform(1.05, 8.0, n),
+        rng.uniform(0.01, 3.0, n),
+    )
+
+
+def test_nll_is_minus_log_student_t_density():
+    y, gamma, nu, alpha, beta = _params(np.random.default_rng(0))
+    t = [torch.as_tensor(a, dtype=torch.float64) for a in (y, gamma, nu, alpha, beta)]
+    got = nig_nll(*t).numpy()
+    scale = np.sqrt(beta * (1 + nu) / (nu * alpha))
+    want = -stats.t.logpdf(y, df=2 * alpha, loc=gamma, scale=scale)
+    np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-10)
+
+
+def test_numpy_nll_matches_torch_nll():
+    y, gamma, nu, alpha, beta = _params(np.random.default_rng(1))
+    ev = Evidential(gamma=gamma, nu=nu, alpha=alpha, beta=beta)
+    t = [torch.as_tensor(a, dtype=torch.float64) for a in (y, gamma, nu, alpha, beta)]
+    np.testing.assert_allclose(ev.nll(y), nig_nll(*t).numpy(), rtol=1e-12)
+
+
+def test_regularizer_and_loss_follow_design():
+    y, gamma, nu, alpha, beta = (torch.tensor([v]) for v in (1.0, 0.5, 2.0, 3.0, 1.0))
+    assert float(nig_regularizer(y, gamma, nu, alpha)) == pytest.approx(0.5 * (2 * 2.0 + 3.0))
+    loss = evidential_loss(y, gamma, nu, alpha, beta, lam=0.1)
+    want = float(nig_nll(y, gamma, nu, alpha, beta)) + 0.1 * 3.5
+    assert float(loss) == pytest.approx(want)
+
+
+@pytest.mark.parametrize("scale", [1e-6, 1.0, 1e6])
+def test_gradients_finite_at_extreme_inputs(scale):
+    torch.manual_seed(0)
+    raw = (torch.randn(4, 20) * scale).requires_grad_(True)
+    gamma = raw[0]
+    nu = torch.nn.functional.softplus(raw[1]) + 1e-6
+    alpha = torch.nn.functional.softplus(raw[2]) + 1.0
+    beta = torch.nn.functional.softplus(raw[3]) + 1e-6
+    y = torch.randn(20) * scale
+    evidential_loss(y, gamma, nu, alpha, beta, lam=0.01).backward()
+    assert torch.isfinite(raw.grad).all()
+
+
+def test_interval_is_student_t_quantile():
+    ev = Evidential(
+        gamma=np.array([[1.0]]),
+        nu=np.array([[2.0]]),
+        alpha=np.array([[3.0]]),
+        beta=np.array([[0.5]]),
+    )
+    lo, hi = ev.interval(0.9)
+    scale = np.sqrt(0.5 * 3.0 / (2.0 * 3.0))
+    assert hi[0, 0] == pytest.approx(stats.t.ppf(0.95, df=6.0, loc=1.0, scale=scale))
+    assert lo[0, 0] == pytest.approx(stats.t.ppf(0.05, df=6.0, loc=1.0, scale=scale))
+
+
+def test_interval_covers_its_level_on_its_own_distribution():
+    rng = np.random.default_rng(3)
+    n = 20000
+    ev = Evidential(
+        gamma=np.zeros((n, 1)),
+        nu=np.full((n, 1), 0.7),
+        alpha=np.full((n, 1), 2.5),
+        beta=np.full((n, 1), 0.2),
+    )
+    y = stats.t.rvs(df=5.0, scale=ev.scale()[0, 0], size=(n, 1), random_state=rng)
+    lo, hi = ev.interval(0.9)
+    assert np.mean((y >= lo) & (y <= hi)) == pytest.approx(0.9, abs=0.01)
+
+
+def test_uncertainties_and_bad_level():
+    ev = Evidential(
+        gamma=np.zeros((1, 1)),
+        nu=np.full((1, 1), 4.0),
+        alpha=np.full((1, 1), 3.0),
+        beta=np.full((1, 1), 2.0),
+    )
+    assert ev.aleatoric()[0, 0] == pytest.approx(1.0)
+    assert ev.epistemic()[0, 0] == pytest.approx(0.25)
+    with pytest.raises(ConfigError, match="level"):
+        ev.interval(1.5)

@@ -1,0 +1,64 @@
+import numpy as np
+import pytest
+
+from learner.config import ModelConfig, TrainConfig
+from learner.features import FeatureSpec
+from learner.metrics import ARCMIN_PER_RAD, accuracy_report
+from learner.model import ErrorModel
+
+SPEC = FeatureSpec(names=("q1",), low=np.array([-1.0]), high=np.array([1.0]))
+KEYS = {
+    "mean_mm",
+    "std_mm",
+    "max_mm",
+    "p95_mm",
+    "mean_arcmin",
+    "improvement_pct",
+    "coverage_68",
+    "coverage_90",
+    "coverage_95",
+    "interval_width_90_mm",
+    "nll",
+}
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    rng = np.random.default_rng(0)
+    X = rng.uniform(-1, 1, (300, 1))
+    Y = X * np.array([2e-3, 1e-4, 1e-4, 1e-3, 0.0, 5e-4]) + rng.normal(0, 5e-5, (300, 6))
+    m = ErrorModel.create(
+        SPEC, ModelConfig(hidden_layers=1, neurons=16), TrainConfig(max_epochs=60), 0
+    )
+    m.fit(X[:200], Y[:200])
+    return m, X[200:], Y[200:]
+
+
+def test_report_keys_and_values_match_a_direct_computation(fitted):
+    m, X, Y = fitted
+    r = accuracy_report(m, X, Y)
+    assert set(r.to_dict()) >= KEYS
+    res = Y - m.predict(X).gamma
+    pos = np.linalg.norm(res[:, :3], axis=1) * 1e3
+    assert r.mean_mm == pytest.approx(pos.mean()) and r.max_mm == pytest.approx(pos.max())
+    rot = np.linalg.norm(res[:, 3:], axis=1) * ARCMIN_PER_RAD
+    assert r.mean_arcmin == pytest.approx(rot.mean())
+    base = np.linalg.norm(Y[:, :3], axis=1).mean() * 1e3
+    assert r.improvement_pct == pytest.approx(100 * (1 - pos.mean() / base))
+    assert 0 <= r.coverage_68 <= r.coverage_90 <= r.coverage_95 <= 1
+    assert r.interval_width_90_mm > 0 and np.isfinite(r.nll)
+
+
+def test_uncalibrated_baseline_is_used(fitted):
+    m, X, Y = fitted
+    r = accuracy_report(m, X, Y, Y_uncalibrated=2 * Y)
+    assert r.uncalibrated_mean_mm == pytest.approx(
+        2 * np.linalg.norm(Y[:, :3], axis=1).mean() * 1e3
+    )
+
+
+def test_nll_is_in_mm(fitted):
+    m, X, Y = fitted
+    r = accuracy_report(m, X, Y)
+    nll_m = m.predict(X).nll(Y)[:, :3].mean()
+    assert r.nll == pytest.approx(nll_m + np.log(1e3))

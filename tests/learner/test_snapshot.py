@@ -1,0 +1,75 @@
+import numpy as np
+import pytest
+
+from kinematics.errors import SnapshotError
+from learner.config import ModelConfig, TrainConfig
+from learner.features import FeatureSpec
+from learner.model import ErrorModel
+from learner.snapshot import (
+    load_snapshot,
+    save_snapshot,
+    snapshot_from_bytes,
+    snapshot_meta,
+    snapshot_to_bytes,
+)
+
+SPEC = FeatureSpec(
+    names=("q1", "q2", "temp_a"), low=np.array([-3.0, -2, 0]), high=np.array([3.0, 2, 60])
+)
+
+
+@pytest.fixture(scope="module")
+def trained():
+    rng = np.random.default_rng(0)
+    X = rng.uniform(SPEC.low, SPEC.high, (120, 3))
+    Y = 1e-3 * np.sin(X[:, :1] + np.arange(6)) + rng.normal(0, 1e-5, (120, 6))
+    m = ErrorModel.create(
+        SPEC,
+        ModelConfig(hidden_layers=2, neurons=16, dropout=0.1),
+        TrainConfig(max_epochs=5),
+        3,
+        robot="ur10",
+    )
+    m.fit(X, Y)
+    m.metrics = {"mean_mm": 0.5}
+    return m, X
+
+
+def test_reload_predicts_bit_identically(trained, tmp_path):
+    m, X = trained
+    path = save_snapshot(m, tmp_path / "m.safetensors")
+    back = load_snapshot(path)
+    a, b = m.predict(X), back.predict(X)
+    for field in ("gamma", "nu", "alpha", "beta"):
+        np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+    assert back.feature_names == m.feature_names and back.robot == "ur10"
+    assert back.model_cfg == m.model_cfg and back.train_cfg == m.train_cfg
+    assert back.metrics == {"mean_mm": 0.5}
+    np.testing.assert_array_equal(back.spec.low, SPEC.low)
+
+
+def test_metadata_is_json_and_no_pickle(trained):
+    m, _ = trained
+    data = snapshot_to_bytes(m, extra_meta={"version": 7})
+    meta = snapshot_meta(data)
+    assert meta["schema"] == "robocal.model" and meta["extra"] == {"version": 7}
+    assert meta["feature_names"] == ["q1", "q2", "temp_a"]
+    assert b"pickle" not in data and not data.startswith(b"\x80")
+
+
+def test_bad_snapshots_raise(trained, tmp_path):
+    m, _ = trained
+    data = snapshot_to_bytes(m)
+    with pytest.raises(SnapshotError, match="no such"):
+        load_snapshot(tmp_path / "missing.safetensors")
+    (tmp_path / "junk.safetensors").write_bytes(b"\x05\x00\x00\x00\x00\x00\x00\x00junk!")
+    with pytest.raises(SnapshotError, match="junk.safetensors"):
+        load_snapshot(tmp_path / "junk.safetensors")
+    with pytest.raises(SnapshotError):
+        snapshot_from_bytes(data[: len(data) // 2])
+    other = ErrorModel.create(SPEC, ModelConfig(hidden_layers=1, neurons=4), TrainConfig(), 0)
+    blob = snapshot_to_bytes(other)
+    swapped = blob.replace(b'\\"hidden_layers\\": 1', b'\\"hidden_layers\\": 2')
+    assert swapped != blob
+    with pytest.raises(SnapshotError, match="does not match"):
+        snapshot_from_bytes(swapped)
