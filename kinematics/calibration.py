@@ -20,17 +20,23 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.linalg import qr
-from scipy.spatial.transform import Rotation
 from threadpoolctl import threadpool_limits
 
 from kinematics.dataset import Dataset
 from kinematics.description import RobotDescription
-from kinematics.effects._base import DH_FIELDS, Conditions, Effect, Perturbation
+from kinematics.effects._base import (
+    DH_FIELDS,
+    Conditions,
+    Effect,
+    Perturbation,
+    Restricted,
+    frame_correction,
+)
 from kinematics.errors import ConfigError, IdentifiabilityError
 from kinematics.gap.conditions import Observations, cell_description, observations_from_dataset
 from kinematics.gap.fitting import fit_effects, jacobian
 from kinematics.model import RobotModel
-from kinematics.transforms import rotation_angle, transform
+from kinematics.transforms import rotation_angle
 
 _DH_UNITS = ("m", "m", "rad", "rad", "rad")
 FRAME_FIELDS = ("x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad")
@@ -77,38 +83,32 @@ def calibration_parameter_names(desc: RobotDescription) -> tuple[str, ...]:
     return (*dh, *(f"base_{f}" for f in FRAME_FIELDS), *(f"tool_{f}" for f in FRAME_FIELDS))
 
 
-def frame_correction(xi: np.ndarray) -> np.ndarray:
-    """The transform of a translation (m) + rotation vector (rad) ``xi`` (6,)."""
-    xi = np.asarray(xi, dtype=float)
-    return transform(Rotation.from_rotvec(xi[3:]).as_matrix(), xi[:3])
-
-
-class GeometricFrames(Effect):
-    """DH deviations plus base/tool corrections, restricted to the ``free`` parameter indices."""
+class _DhAndFrames(Effect):
+    """Every DH deviation plus base/tool corrections: the classical calibration parameters."""
 
     name = "geometric_frames"
 
-    def __init__(self, desc: RobotDescription, free: tuple[int, ...] | None = None) -> None:
-        self._all = calibration_parameter_names(desc)
-        self.free = tuple(range(len(self._all))) if free is None else tuple(free)
+    def __init__(self, desc: RobotDescription) -> None:
+        self._names = calibration_parameter_names(desc)
 
     def parameter_names(self, desc: RobotDescription) -> tuple[str, ...]:
-        return tuple(self._all[i] for i in self.free)
-
-    def full(self, params: np.ndarray) -> np.ndarray:
-        """The full parameter vector (every candidate; dropped ones zero)."""
-        x = np.zeros(len(self._all))
-        x[list(self.free)] = params
-        return x
+        return self._names
 
     def perturbation(self, model: RobotModel, params: np.ndarray, cond: Conditions) -> Perturbation:
         n = model.description.n_joints
-        x = self.full(params)
+        x = np.asarray(params, dtype=float)
         out = Perturbation.zero(cond.n_points, n)
         out.ddh[:] = x[: 5 * n].reshape(n, 5)
-        out.base[:] = frame_correction(x[5 * n : 5 * n + 6])
-        out.tool[:] = frame_correction(x[5 * n + 6 :])
+        out.base[:] = frame_correction(x[5 * n : 5 * n + 3], x[5 * n + 3 : 5 * n + 6])
+        out.tool[:] = frame_correction(x[5 * n + 6 : 5 * n + 9], x[5 * n + 9 :])
         return out
+
+
+class GeometricFrames(Restricted):
+    """DH deviations plus base/tool corrections, restricted to the ``free`` parameter indices."""
+
+    def __init__(self, desc: RobotDescription, free: tuple[int, ...] | None = None) -> None:
+        super().__init__(_DhAndFrames(desc), desc, free)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -279,8 +279,10 @@ def apply_calibration(
         )
         for i, j in enumerate(desc.joints)
     )
-    tool = desc.tool @ frame_correction(values[5 * n + 6 :])
-    base = np.asarray(T_W_0, dtype=float) @ frame_correction(values[5 * n : 5 * n + 6])
+    tool = desc.tool @ frame_correction(values[5 * n + 6 : 5 * n + 9], values[5 * n + 9 :])
+    base = np.asarray(T_W_0, dtype=float) @ frame_correction(
+        values[5 * n : 5 * n + 3], values[5 * n + 3 : 5 * n + 6]
+    )
     return replace(desc, joints=joints, tool=tool), base
 
 
@@ -293,7 +295,6 @@ __all__ = [
     "apply_calibration",
     "calibrate",
     "calibration_parameter_names",
-    "frame_correction",
     "identifiable",
     "identify",
     "residual_stats",

@@ -140,6 +140,36 @@ class Effect(abc.ABC):
         return params
 
 
+class Restricted(Effect):
+    """An effect with only the parameters at indices ``free`` estimated (the others held at 0).
+
+    Identification keeps the identifiable subset of an effect's parameters this way.
+    """
+
+    def __init__(
+        self, effect: Effect, desc: RobotDescription, free: tuple[int, ...] | None = None
+    ) -> None:
+        self.effect = effect
+        self.name = effect.name
+        self._all = effect.parameter_names(desc)
+        self.free = tuple(range(len(self._all))) if free is None else tuple(free)
+
+    def parameter_names(self, desc: RobotDescription) -> tuple[str, ...]:
+        return tuple(self._all[i] for i in self.free)
+
+    def full(self, params: np.ndarray) -> np.ndarray:
+        """The wrapped effect's whole parameter vector (the held ones zero)."""
+        x = np.zeros(len(self._all))
+        x[list(self.free)] = params
+        return x
+
+    def options(self) -> dict:
+        return self.effect.options()
+
+    def perturbation(self, model: RobotModel, params: np.ndarray, cond: Conditions) -> Perturbation:
+        return self.effect.perturbation(model, self.full(params), cond)
+
+
 def coupling_matrix(desc: RobotDescription) -> np.ndarray:
     """``C = d q_dh / d q_ctrl`` (n, n): controller-joint deltas map to DH deltas as ``C dq``.
 

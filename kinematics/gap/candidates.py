@@ -19,33 +19,11 @@ import numpy as np
 from scipy.stats import f as f_dist
 
 from kinematics.calibration import identifiable
-from kinematics.description import RobotDescription
-from kinematics.effects import EFFECTS, Conditions, Effect, Perturbation
+from kinematics.effects import EFFECTS, Effect
 from kinematics.errors import ConfigError, RobocalError
 from kinematics.gap.conditions import Observations
 from kinematics.gap.fitting import Block, jacobian
 from kinematics.model import RobotModel
-
-
-class Restricted(Effect):
-    """An effect with only the parameters ``free`` estimated (the others held at zero)."""
-
-    def __init__(self, effect: Effect, desc: RobotDescription, free: tuple[int, ...]) -> None:
-        self.effect = effect
-        self.name = effect.name
-        self.free = tuple(free)
-        self._all = effect.parameter_names(desc)
-
-    def parameter_names(self, desc: RobotDescription) -> tuple[str, ...]:
-        return tuple(self._all[i] for i in self.free)
-
-    def full(self, params: np.ndarray) -> np.ndarray:
-        x = np.zeros(len(self._all))
-        x[list(self.free)] = params
-        return x
-
-    def perturbation(self, model: RobotModel, params: np.ndarray, cond: Conditions) -> Perturbation:
-        return self.effect.perturbation(model, self.full(params), cond)
 
 
 @dataclass(frozen=True, kw_only=True)

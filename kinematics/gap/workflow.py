@@ -33,11 +33,10 @@ from kinematics.calibration import (
 )
 from kinematics.dataset import Dataset
 from kinematics.description import RobotDescription
-from kinematics.effects import EFFECTS
+from kinematics.effects import EFFECTS, Restricted
 from kinematics.errors import ConfigError
 from kinematics.gap.candidates import (
     CandidateScore,
-    Restricted,
     best,
     make_effect,
     score_candidates,
@@ -137,7 +136,7 @@ class GapResult:
         """The updated model: folded description and ``T_W_0`` plus the other effects."""
         entries = []
         for (effect, p), std in zip(self.blocks, self.stds, strict=True):
-            if not isinstance(effect, Restricted) or effect.name in FOLDED:
+            if isinstance(effect, GeometricFrames) or effect.name in FOLDED:
                 continue
             entries.append(
                 EffectEntry(
