@@ -121,17 +121,20 @@ def compensation_check(
 
 def run_demo(
     out: str | Path = "out",
-    n: int = 1000,
+    n: int = 3004,
     seed: int = 0,
     progress: Callable[[int], None] | None = None,
     logger: JsonLogger | None = None,
     learner: LearnerStageConfig = DEMO_LEARNER,
-    period_s: float = 1.5,
+    period_s: float = 0.6,
+    settle_s: float = 0.3,
 ) -> DemoResult:
     """Stream an ``n``-point sim campaign through the pipeline; accuracy on held-out points.
 
     ``progress(k)`` is called with the number of data points the window has emitted so far;
-    ``learner`` and ``period_s`` (s between visits) make short runs for tests.
+    ``learner`` and ``period_s`` (s between visits) make short runs for tests; the default
+    re-times the campaign to a visit every 0.6 s (0.3 s settled), so the reference campaign's
+    3004 points stream in about two minutes at 125 Hz joint sampling.
     """
     if n < 2 * learner.continual.init:
         raise ConfigError(f"demo needs n >= {2 * learner.continual.init} points, got {n}")
@@ -156,7 +159,9 @@ def run_demo(
     source_session = open_session(BusConfig.loopback(port, listen=False))
     try:
         time.sleep(0.5)  # let the loopback link come up before publishing
-        source = SimCellSource(source_session, cell, robot, ds, StreamingConfig(period_s=period_s))
+        source = SimCellSource(
+            source_session, cell, robot, ds, StreamingConfig(period_s=period_s, settle_s=settle_s)
+        )
         thread = threading.Thread(target=source.start, name="demo-source", daemon=True)
         thread.start()
         while thread.is_alive():

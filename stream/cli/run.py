@@ -58,7 +58,9 @@ class DemoCommand(Command):
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("--out", default="out", help="folder for robocal.rrd, robocal.mcap")
-        parser.add_argument("--n", type=int, default=1000, help="points in the campaign")
+        parser.add_argument(
+            "--n", type=int, default=3004, help="points in the campaign (the reference: 3004)"
+        )
         parser.add_argument("--seed", type=int, default=0, help="campaign and training seed")
         add_json_flag(parser)
 
