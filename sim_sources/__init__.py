@@ -30,6 +30,7 @@ from sim_sources.scenarios import (
     Scenario,
     get_scenario,
     list_scenarios,
+    scenario_from_model,
     true_parameters,
 )
 from sim_sources.thermal import ThermalConfig, ThermalHistory
@@ -57,6 +58,7 @@ __all__ = [
     "make_program",
     "measurable",
     "simulate",
+    "scenario_from_model",
     "true_parameters",
     "uncalibrated_accuracy",
     "write_campaign",

@@ -157,7 +157,7 @@ def simulate(
     desc = cell.model.description
     params = dict(zip(cell.truth.names, (p for _, p in cell.truth.effects), strict=True))
     meta = DatasetMeta(
-        robot=desc.name,
+        robot=scenario.robot if scenario.model_file else desc.name,
         frame="tracker",
         T_W_0=cell.T_W_0.tolist(),
         T_6_S=desc.tool.tolist(),

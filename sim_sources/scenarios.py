@@ -18,6 +18,7 @@ import numpy as np
 from kinematics.description import RobotDescription
 from kinematics.effects import EFFECTS, Backlash, Effect
 from kinematics.errors import ConfigError
+from kinematics.gap.model_file import load_model_file
 from sim_sources.program import CellConfig, ProgramConfig
 from sim_sources.thermal import ThermalConfig
 
@@ -90,6 +91,7 @@ class Scenario:
     noise: bool = True
     robot_seed: int = 1
     backlash_sign_from: str = "approach"
+    model_file: str | None = None
     magnitudes: Magnitudes = field(default_factory=Magnitudes)
     noise_levels: NoiseConfig = field(default_factory=NoiseConfig)
     program: ProgramConfig = field(default_factory=ProgramConfig)
@@ -106,7 +108,10 @@ class Scenario:
             raise ConfigError(f"scenario {self.name!r}: scale must be >= 0, got {self.scale}")
 
     def build_effects(self, desc: RobotDescription) -> tuple[tuple[Effect, np.ndarray], ...]:
-        """The enabled effects with their true parameters, in vocabulary order."""
+        """The enabled effects with their true parameters, in vocabulary order (or the effects
+        and parameters of ``model_file``, as identified by ``robocal gap``)."""
+        if self.model_file is not None:
+            return tuple(load_model_file(self.model_file).blocks())
         params = true_parameters(self, desc)
         return tuple(
             (_make_effect(name, self), params[name]) for name in ALL_EFFECTS if name in self.effects
@@ -174,6 +179,15 @@ def get_scenario(name: str, *, scale: float | None = None, noise: bool | None = 
     scenario = SCENARIOS[name]
     changes = {k: v for k, v in (("scale", scale), ("noise", noise)) if v is not None}
     return replace(scenario, **changes) if changes else scenario
+
+
+def scenario_from_model(path: str, base: Scenario | None = None) -> Scenario:
+    """``base`` (default ``paper``: its cell, program, temperatures, loads and noise) with the
+    robot replaced by a model file from ``robocal gap``: its calibrated description is the
+    true geometry and its identified effects, with their values, are the hidden effects."""
+    base = SCENARIOS["paper"] if base is None else base
+    load_model_file(path)  # fail early, with the file's own one-line error
+    return replace(base, name=f"model:{path}", robot=str(path), model_file=str(path), effects=())
 
 
 def list_scenarios() -> dict[str, str]:

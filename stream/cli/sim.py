@@ -11,7 +11,7 @@ import sys
 
 from tqdm import tqdm
 
-from sim_sources import get_scenario, list_scenarios, write_campaign
+from sim_sources import get_scenario, list_scenarios, scenario_from_model, write_campaign
 from stream.cli._base import CLIUsageError, Command, add_json_flag, emit
 
 
@@ -31,6 +31,12 @@ class SimDataset(Command):
             default=None,
             help="switch tracker and repeatability noise (default: the scenario's)",
         )
+        parser.add_argument(
+            "--model",
+            default=None,
+            help="simulate the robot of a model file from `robocal gap` (calibrated description "
+            "+ identified effects) in the scenario's cell",
+        )
         parser.add_argument("--list", action="store_true", help="list the scenarios and exit")
         add_json_flag(parser)
 
@@ -43,6 +49,8 @@ class SimDataset(Command):
         if args.out is None:
             raise CLIUsageError("sim dataset needs --out FILE (or --list)")
         scenario = get_scenario(args.scenario, scale=args.scale, noise=args.noise)
+        if args.model is not None:
+            scenario = scenario_from_model(args.model, scenario)
         with tqdm(total=args.n, desc="simulating", unit="pt", file=sys.stderr) as bar:
             report = write_campaign(scenario, args.n, args.seed, args.out, bar.update)
         acc = report.accuracy

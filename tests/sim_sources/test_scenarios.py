@@ -5,7 +5,7 @@ import pytest
 
 from kinematics.description import load_description
 from kinematics.effects import EFFECTS
-from kinematics.errors import ConfigError
+from kinematics.errors import ConfigError, DescriptionError
 from sim_sources.scenarios import SCENARIOS, get_scenario, list_scenarios, true_parameters
 
 FANUC = load_description("fanuc_m900ib700")
@@ -51,3 +51,29 @@ def test_unknown_names_raise_one_line():
         get_scenario("x")
     with pytest.raises(ConfigError, match="scale must be >= 0"):
         get_scenario("paper", scale=-1.0)
+
+
+def test_a_gap_model_file_runs_in_the_simulator(tmp_path):
+    """The model `robocal gap` writes (description + identified effects) is a simulated robot."""
+    from kinematics.gap.model_file import EffectEntry, ModelFile, model_to_toml
+    from sim_sources.cell import simulate
+    from sim_sources.scenarios import scenario_from_model
+
+    reference = get_scenario("joint_compliance", noise=False)
+    desc = load_description(reference.robot)
+    ((effect, params),) = reference.build_effects(desc)
+    entry = EffectEntry(
+        name=effect.name,
+        options=effect.options(),
+        parameters=dict(zip(effect.parameter_names(desc), map(float, params), strict=True)),
+        std={},
+    )
+    path = tmp_path / "model.toml"
+    path.write_text(model_to_toml(ModelFile(description=desc, T_W_0=np.eye(4), effects=(entry,))))
+    from_model = simulate(scenario_from_model(str(path), reference), 40, 5)
+    direct = simulate(reference, 40, 5)
+    cols = ["x", "y", "z", "qx", "qy", "qz", "qw", "qs2", "qs3"]
+    np.testing.assert_allclose(from_model.table[cols], direct.table[cols], atol=1e-12)
+    assert from_model.meta.robot == str(path)
+    with pytest.raises(DescriptionError, match="cannot read model file"):
+        scenario_from_model(str(tmp_path / "missing.toml"))
