@@ -1,7 +1,7 @@
 """Configurations of the learner: network shape, batch training and continual learning.
 
 Frozen ``kw_only`` dataclasses validated on construction; the defaults were picked by
-measurement on the simulated paper campaign (see BENCHMARKS_parts/learner.md).
+measurement on the simulated paper campaign (see BENCHMARKS.md, "Learner").
 
 >>> ModelConfig(hidden_layers=2, neurons=64).activation
 'gelu'
