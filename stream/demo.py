@@ -45,7 +45,7 @@ DEMO_LEARNER = LearnerStageConfig(
     model=ModelConfig(hidden_layers=2, neurons=64),
     train=TrainConfig(batch_size=32, lr=3e-3),
     continual=ContinualConfig(
-        memory=300, batch=100, init=100, epochs_per_update=40, init_epochs=200
+        memory=300, batch=100, init=100, epochs_per_update=30, init_epochs=200
     ),
     holdout_every=10,
 )
