@@ -18,13 +18,13 @@ scale. A TOML file names only the ranges it changes:
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, fields
 from pathlib import Path
 
 import optuna
 
 from kinematics.errors import ConfigError
+from kinematics.toml_io import load_toml
 
 ACTIVATIONS = ("elu", "relu", "gelu")
 
@@ -112,17 +112,7 @@ def space_from_dict(raw: dict) -> SearchSpace:
 
 def load_space(path: str | Path) -> SearchSpace:
     """Read a search-space TOML file; errors name the file and the bad value."""
-    path = Path(path)
-    if not path.exists():
-        raise ConfigError(f"{path}: search-space file not found")
-    try:
-        raw = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: invalid TOML: {exc}") from None
-    try:
-        return space_from_dict(raw)
-    except ConfigError as exc:
-        raise ConfigError(f"{path}: {exc}") from None
+    return load_toml(path, "search-space file", space_from_dict)
 
 
 def _check_range(space: SearchSpace, name: str, integer: bool, low_min: float | None) -> None:

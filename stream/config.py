@@ -7,7 +7,6 @@
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -15,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from kinematics.errors import ConfigError, RobocalError
+from kinematics.toml_io import load_toml
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from stream.bus import BusConfig
 from stream.compensation import CompensationConfig
@@ -150,14 +150,4 @@ def config_from_dict(raw: dict) -> DaemonConfig:
 
 def load_config(path: str | Path) -> DaemonConfig:
     """Read a daemon TOML config; any problem raises ConfigError naming the file."""
-    path = Path(path)
-    if not path.exists():
-        raise ConfigError(f"{path}: config file not found")
-    try:
-        raw = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: invalid TOML: {exc}") from None
-    try:
-        return config_from_dict(raw)
-    except ConfigError as exc:
-        raise ConfigError(f"{path}: {exc}") from None
+    return load_toml(path, "config file", config_from_dict)
