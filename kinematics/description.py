@@ -12,13 +12,13 @@ with ``theta = q_dh`` and ``q_dh = coupling(q_ctrl)``.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from kinematics.errors import DescriptionError
+from kinematics.toml_io import load_toml
 from kinematics.transforms import transform_from_xyz_rpy, xyz_rpy_from_transform
 
 ROBOTS_DIR = Path(__file__).parent / "robots"
@@ -137,18 +137,13 @@ def load_description(source: str | Path) -> RobotDescription:
             names = sorted(p.stem for p in ROBOTS_DIR.glob("*.toml"))
             raise DescriptionError(f"unknown robot {str(source)!r}; shipped: {', '.join(names)}")
         path = shipped
-    if not path.exists():
-        raise DescriptionError(f"{path}: robot description not found")
-    try:
-        raw = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise DescriptionError(f"{path}: invalid TOML: {exc}") from None
-    try:
+
+    def build(raw: dict) -> RobotDescription:
         if "urdf" in raw:
             return _description_from_urdf_entry(path, raw)
         return description_from_dict(raw)
-    except DescriptionError as exc:
-        raise DescriptionError(f"{path}: {exc}") from None
+
+    return load_toml(path, "robot description", build, DescriptionError)
 
 
 def _description_from_urdf_entry(path: Path, raw: dict) -> RobotDescription:
