@@ -18,6 +18,7 @@ from kinematics.dataset import read_dataset
 from kinematics.description import load_description
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from learner.continual import ContinualLearner
+from learner.encoding import n_inputs
 from learner.evidential import evidential_loss
 from learner.features import feature_spec
 from learner.model import ErrorModel
@@ -85,8 +86,9 @@ def main() -> None:
         "predict_1000_p99_ms": 1e3 * np.percentile(thousand, 99),
     }
     net = model.net
-    seq = separate_models(spec.n_features, cfg)
-    xb = torch.randn(64, spec.n_features)
+    width = n_inputs(spec, cfg.encoding)
+    seq = separate_models(width, cfg)
+    xb = torch.randn(64, width)
     yb = torch.randn(64, 6)
     for name, params, fwd in (
         ("batched", net.parameters(), net),
@@ -100,7 +102,7 @@ def main() -> None:
             opt.step()
 
         out[f"{name}_train_step_bs64_ms"] = 1e3 * np.median(timed(step, 500))
-        xin = torch.as_tensor(spec.scale(X), dtype=torch.float32)
+        xin = model.scale_x(X)
         with torch.inference_mode():
             out[f"{name}_infer_1000_ms"] = 1e3 * np.median(
                 timed(lambda fwd=fwd, x=xin: fwd(x), 200)

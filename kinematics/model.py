@@ -119,6 +119,19 @@ class RobotModel:
                 tau[k] -= J[:3].T @ np.asarray(tool_force_n[k], dtype=float)
         return tau
 
+    def fk_and_jacobian(self, q_ctrl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tool poses ``(N, 4, 4)`` and Jacobians ``(N, 6, n)`` w.r.t. DH joint variables
+        (world-aligned at the tool), one kinematics pass per pose."""
+        q = self.description.to_dh(np.atleast_2d(q_ctrl))
+        poses = np.empty((q.shape[0], 4, 4))
+        jacobians = np.empty((q.shape[0], 6, q.shape[1]))
+        for k in range(q.shape[0]):
+            jacobians[k] = pin.computeFrameJacobian(
+                self.model, self.data, q[k], self._tool, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+            )
+            poses[k] = pin.updateFramePlacement(self.model, self.data, self._tool).homogeneous
+        return poses, jacobians
+
     def jacobian(self, q_ctrl: np.ndarray) -> np.ndarray:
         """Tool Jacobians ``(N, 6, n)`` w.r.t. DH joint variables (world-aligned at the tool)."""
         q = self.description.to_dh(np.atleast_2d(q_ctrl))

@@ -19,6 +19,7 @@ from kinematics.errors import ConfigError
 
 ACTIVATIONS = ("elu", "relu", "gelu")
 STRATEGIES = ("max_error", "naive", "reservoir", "full")
+ENCODINGS = ("kinematic", "minmax")
 
 
 def _check(cond: bool, msg: str) -> None:
@@ -28,12 +29,14 @@ def _check(cond: bool, msg: str) -> None:
 
 @dataclass(frozen=True, kw_only=True)
 class ModelConfig:
-    """Shape of each of the six per-component MLPs."""
+    """Shape of each of the six per-component MLPs and how raw features become their inputs
+    (``encoding``, see :mod:`learner.encoding`)."""
 
     hidden_layers: int = 3
     neurons: int = 64
     activation: str = "gelu"
     dropout: float = 0.0
+    encoding: str = "kinematic"
 
     def __post_init__(self) -> None:
         _check(
@@ -49,6 +52,10 @@ class ModelConfig:
             f"model.activation must be one of {ACTIVATIONS}, got {self.activation!r}",
         )
         _check(0.0 <= self.dropout < 1.0, f"model.dropout must be in [0, 1), got {self.dropout}")
+        _check(
+            self.encoding in ENCODINGS,
+            f"model.encoding must be one of {ENCODINGS}, got {self.encoding!r}",
+        )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -95,7 +102,9 @@ class TrainConfig:
 @dataclass(frozen=True, kw_only=True)
 class ContinualConfig:
     """Continual learning: memory ``N_m``, batch ``n_B``, ``init`` points for the first model,
-    the replay ``strategy`` and the epochs of warm-started training after each batch."""
+    the replay ``strategy``, and the epochs and learning rate of the warm-started training
+    after each batch (fine-tuning, below the first fit's rate: a fresh Adam at the full rate
+    moves every weight and forgets what the memory no longer holds)."""
 
     memory: int = 500
     batch: int = 100
@@ -103,6 +112,7 @@ class ContinualConfig:
     strategy: str = "max_error"
     epochs_per_update: int = 60
     init_epochs: int = 300
+    update_lr: float = 1e-3
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -115,5 +125,9 @@ class ContinualConfig:
         _check(
             self.strategy in STRATEGIES,
             f"continual.strategy must be one of {STRATEGIES}, got {self.strategy!r}",
+        )
+        _check(
+            0.0 < self.update_lr < 1.0,
+            f"continual.update_lr must be in (0, 1), got {self.update_lr}",
         )
         _check(isinstance(self.seed, int), f"continual.seed must be an int, got {self.seed!r}")

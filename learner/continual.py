@@ -3,8 +3,9 @@
 Each :meth:`ContinualLearner.update` predicts memory ∪ new batch with the current model, ranks
 the pool by the Euclidean norm of the prediction error (in standardised label units, so
 position and orientation count alike), lets the replay strategy pick the new memory and trains
-the model warm-started on it. The interval scale is recalibrated on each new batch before the
-model trains on it (prequentially: on data it has not seen). Until ``init`` points have
+the model warm-started on it, at the fine-tuning rate ``update_lr``. The interval scale is
+recalibrated on each new batch before the model trains on it (prequentially: on data it has
+not seen). Until ``init`` points have
 arrived, updates only collect points; then the first model is trained on them.
 """
 
@@ -109,7 +110,11 @@ class ContinualLearner:
         self.n_seen += len(X_new)
         start = time.perf_counter()
         report = self.model.fit(
-            self._mem_x, self._mem_y, max_epochs=self.cfg.epochs_per_update, val_fraction=0.0
+            self._mem_x,
+            self._mem_y,
+            max_epochs=self.cfg.epochs_per_update,
+            val_fraction=0.0,
+            lr=self.cfg.update_lr,
         )
         self.version += 1
         new_kept = int(np.sum(keep >= len(pool_x) - len(X_new)))

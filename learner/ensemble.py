@@ -65,6 +65,8 @@ class EvidentialEnsemble(nn.Module):
             b = (torch.rand(n_heads, 1, fan_out, generator=gen) * 2 - 1) * bound
             self.weights.append(nn.Parameter(w))
             self.biases.append(nn.Parameter(b))
+        # Indexing a ParameterList costs more than a small layer's matmul: keep plain pairs.
+        self._layers = tuple(zip(self.weights, self.biases, strict=True))
 
     @property
     def n_weights(self) -> int:
@@ -74,13 +76,14 @@ class EvidentialEnsemble(nn.Module):
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """Scaled features ``(N, F)`` -> ``gamma, nu, alpha, beta``, each ``(N, n_heads)``."""
         act = _ACTIVATIONS[self.activation]
-        w0, b0 = self.weights[0], self.biases[0]
+        layers = self._layers
+        w0, b0 = layers[0]
         heads, n_in, n_out = w0.shape
         # The first layer shares its input: one (N, F) @ (F, heads*out) matmul for all heads.
         h = (x @ w0.permute(1, 0, 2).reshape(n_in, heads * n_out)).view(-1, heads, n_out)
         h = h.transpose(0, 1) + b0
-        last = len(self.weights) - 1
-        for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
+        last = len(layers) - 1
+        for i, (w, b) in enumerate(layers):
             if i > 0:
                 h = torch.baddbmm(b, h, w)
             if i < last:

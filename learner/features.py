@@ -31,11 +31,13 @@ if TYPE_CHECKING:  # pinocchio is only needed by callers that compute labels
 
 @dataclass(frozen=True, kw_only=True)
 class FeatureSpec:
-    """Feature names and the fixed ranges ``[low, high]`` mapped to ``[-1, 1]`` (SI units)."""
+    """Feature names and the fixed ranges ``[low, high]`` mapped to ``[-1, 1]`` (SI units), with
+    the robot description the kinematic input encoding needs (:mod:`learner.encoding`)."""
 
     names: tuple[str, ...]
     low: np.ndarray
     high: np.ndarray
+    description: RobotDescription | None = None
 
     def __post_init__(self) -> None:
         low = np.asarray(self.low, dtype=float).reshape(-1)
@@ -98,7 +100,7 @@ def feature_spec(
     names += [t if t.startswith("temp_") else f"temp_{t}" for t in temps]
     low += [desc.sensors.temperature_min_c] * n_temperatures
     high += [desc.sensors.temperature_max_c] * n_temperatures
-    return FeatureSpec(names=tuple(names), low=np.array(low), high=np.array(high))
+    return FeatureSpec(names=tuple(names), low=np.array(low), high=np.array(high), description=desc)
 
 
 def dataset_feature_spec(

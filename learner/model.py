@@ -25,6 +25,7 @@ from scipy import optimize, stats
 
 from kinematics.errors import DatasetError
 from learner.config import ModelConfig, TrainConfig
+from learner.encoding import input_encoder, n_inputs
 from learner.ensemble import EvidentialEnsemble
 from learner.evidential import Evidential, evidential_loss
 from learner.features import FeatureSpec
@@ -76,7 +77,7 @@ class ErrorModel:
             np.ones(N_LABELS) if interval_scale is None else np.asarray(interval_scale, dtype=float)
         )
         self.net = EvidentialEnsemble(
-            n_inputs=spec.n_features,
+            n_inputs=n_inputs(spec, model_cfg.encoding),
             hidden_layers=model_cfg.hidden_layers,
             neurons=model_cfg.neurons,
             activation=model_cfg.activation,
@@ -84,6 +85,7 @@ class ErrorModel:
             n_heads=N_LABELS,
             seed=seed,
         )
+        self._encode = input_encoder(spec, model_cfg.encoding)
         self.skipped_steps = 0
         self.metrics: dict[str, float] = {}
 
@@ -114,8 +116,8 @@ class ErrorModel:
     # -- scaling -------------------------------------------------------------------------------
 
     def scale_x(self, X: np.ndarray) -> torch.Tensor:
-        """Raw features -> scaled float32 tensor (raises DatasetError on a wrong shape)."""
-        return torch.as_tensor(self.spec.scale(X), dtype=torch.float32)
+        """Raw features -> encoded float32 network inputs (DatasetError on a wrong shape)."""
+        return torch.as_tensor(self._encode(X), dtype=torch.float32)
 
     def scale_y(self, Y: np.ndarray) -> torch.Tensor:
         """Labels (m, rad) -> standardised float32 tensor."""
@@ -179,6 +181,7 @@ class ErrorModel:
         *,
         max_epochs: int | None = None,
         val_fraction: float | None = None,
+        lr: float | None = None,
     ) -> TrainReport:
         """Train (warm-started from the current weights) with Adam and the evidential loss.
 
@@ -187,7 +190,7 @@ class ErrorModel:
         calibrated on the validation set (:meth:`calibrate`). ``on_epoch(epoch, val_mse)`` runs
         after every epoch (val MSE in scaled label units, train loss when no validation) and may
         raise to stop training (e.g. ``optuna.TrialPruned``); the exception propagates.
-        ``max_epochs`` and ``val_fraction`` override the train config for this call.
+        ``max_epochs``, ``val_fraction`` and ``lr`` override the train config for this call.
         """
         cfg = self.train_cfg
         X = np.asarray(X, dtype=float)
@@ -210,7 +213,8 @@ class ErrorModel:
         self._ensure_label_scaler(Y)
         Xs, Ys = self.scale_x(X), self.scale_y(Y)
         val = None if X_val is None else (self.scale_x(X_val), self.scale_y(Y_val))
-        report = _train_loop(self, Xs, Ys, val, gen, max_epochs or cfg.max_epochs, on_epoch)
+        epochs = max_epochs or cfg.max_epochs
+        report = _train_loop(self, Xs, Ys, val, gen, epochs, lr or cfg.lr, on_epoch)
         if X_val is not None and len(X_val) >= _MIN_CALIBRATION:
             self.calibrate(X_val, Y_val)
         return report
@@ -223,13 +227,14 @@ def _train_loop(
     val: tuple[torch.Tensor, torch.Tensor] | None,
     gen: torch.Generator,
     max_epochs: int,
+    lr: float,
     on_epoch: Callable[[int, float], None] | None,
 ) -> TrainReport:
     """Mini-batch Adam; a step whose loss or gradient is not finite is skipped and counted."""
     cfg = model.train_cfg
     net = model.net
     params = list(net.parameters())
-    opt = torch.optim.Adam(params, lr=cfg.lr, weight_decay=cfg.weight_decay, foreach=True)
+    opt = torch.optim.Adam(params, lr=lr, weight_decay=cfg.weight_decay, foreach=True)
     sched = torch.optim.lr_scheduler.ReduceLROnPlateau(
         opt, mode="min", factor=0.75, patience=cfg.patience_lr
     )

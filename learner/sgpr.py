@@ -1,7 +1,7 @@
 """Sparse GP benchmark (Titsias SGPR via gpytorch): one GP per label component.
 
 The comparison model of the reference study. gpytorch is an optional (``bench``) dependency,
-imported only here; inputs use the same fixed feature scaling as :class:`ErrorModel`.
+imported only here; inputs use the same fixed input encoding as :class:`ErrorModel`.
 """
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ import numpy as np
 import torch
 
 from kinematics.errors import ConfigError
+from learner.encoding import input_encoder
 from learner.features import FeatureSpec
 
 
@@ -22,6 +23,7 @@ def fit_predict_sgpr(
     n_inducing: int = 200,
     iterations: int = 150,
     seed: int = 0,
+    encoding: str = "kinematic",
 ) -> np.ndarray:
     """Fit six SGPRs (ARD RBF, ``n_inducing`` points from the data) and predict means (N, 6)."""
     try:
@@ -44,8 +46,9 @@ def fit_predict_sgpr(
             )
 
     gen = torch.Generator().manual_seed(seed)
-    x = torch.as_tensor(spec.scale(X), dtype=torch.float64)
-    xt = torch.as_tensor(spec.scale(X_test), dtype=torch.float64)
+    encode = input_encoder(spec, encoding)
+    x = torch.as_tensor(encode(X), dtype=torch.float64)
+    xt = torch.as_tensor(encode(X_test), dtype=torch.float64)
     mean, std = Y.mean(axis=0), Y.std(axis=0) + 1e-15
     out = np.empty((len(X_test), Y.shape[1]))
     for c in range(Y.shape[1]):

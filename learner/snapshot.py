@@ -1,8 +1,10 @@
 """Model snapshots: safetensors weights plus JSON metadata, never pickle.
 
 The metadata (under the safetensors header key ``robocal``) holds the schema version, robot,
-feature names, model/train configs, seed and training metrics; the tensors hold the network
-weights and the fixed scalers (float64, so predictions after a reload are bit-identical).
+its description (TOML text, for the kinematic input encoding), feature names, model/train
+configs, seed and training metrics; the tensors hold the network weights, the fixed scalers and
+the sensor transform ``T_6_S`` (float64, so predictions after a reload are bit-identical).
+Version 1 snapshots (before the input encoding existed) load as ``encoding = "minmax"``.
 
 >>> from kinematics.description import load_description
 >>> from learner.config import ModelConfig, TrainConfig
@@ -18,6 +20,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import tomllib
 from dataclasses import asdict
 from pathlib import Path
 
@@ -27,13 +30,15 @@ from safetensors import SafetensorError
 from safetensors.torch import load as st_load
 from safetensors.torch import save as st_save
 
+from kinematics.description import description_from_dict, description_to_toml
 from kinematics.errors import RobocalError, SnapshotError
 from learner.config import ModelConfig, TrainConfig
 from learner.features import FeatureSpec
 from learner.model import ErrorModel
 
 SCHEMA = "robocal.model"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+_READABLE_VERSIONS = (1, 2)
 _META_KEY = "robocal"
 _SCALERS = ("feature_low", "feature_high", "label_mean", "label_std", "interval_scale")
 
@@ -48,10 +53,14 @@ def snapshot_to_bytes(model: ErrorModel, extra_meta: dict | None = None) -> byte
     scalers = (model.spec.low, model.spec.high, mean, std, model.interval_scale)
     for key, value in zip(_SCALERS, scalers, strict=True):
         tensors[key] = torch.as_tensor(np.asarray(value, dtype=np.float64))
+    desc = model.spec.description
+    if desc is not None:
+        tensors["sensor_tool"] = torch.as_tensor(desc.tool)
     meta = {
         "schema": SCHEMA,
         "version": SCHEMA_VERSION,
         "robot": model.robot,
+        "description": None if desc is None else description_to_toml(desc),
         "feature_names": list(model.feature_names),
         "model_config": asdict(model.model_cfg),
         "train_config": asdict(model.train_cfg),
@@ -77,9 +86,9 @@ def snapshot_meta(data: bytes) -> dict:
         raise SnapshotError(f"not a robocal snapshot (bad safetensors header: {exc})") from None
     if meta.get("schema") != SCHEMA:
         raise SnapshotError(f"snapshot schema must be {SCHEMA!r}, got {meta.get('schema')!r}")
-    if meta.get("version") != SCHEMA_VERSION:
+    if meta.get("version") not in _READABLE_VERSIONS:
         raise SnapshotError(
-            f"snapshot version must be {SCHEMA_VERSION}, got {meta.get('version')!r}"
+            f"snapshot version must be one of {_READABLE_VERSIONS}, got {meta.get('version')!r}"
         )
     return meta
 
@@ -95,14 +104,19 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
     if missing:
         raise SnapshotError(f"snapshot lacks tensor(s) {', '.join(missing)}")
     try:
+        desc = None
+        if meta.get("description"):
+            desc = description_from_dict(tomllib.loads(meta["description"]))
+            desc = desc.with_tool(tensors["sensor_tool"].numpy())
         spec = FeatureSpec(
             names=tuple(meta["feature_names"]),
             low=tensors["feature_low"].numpy(),
             high=tensors["feature_high"].numpy(),
+            description=desc,
         )
         model = ErrorModel(
             spec=spec,
-            model_cfg=ModelConfig(**meta["model_config"]),
+            model_cfg=ModelConfig(**({"encoding": "minmax"} | meta["model_config"])),
             train_cfg=TrainConfig(**meta["train_config"]),
             seed=int(meta["seed"]),
             robot=str(meta["robot"]),
@@ -112,7 +126,7 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
         )
         state = {k[len("net.") :]: v for k, v in tensors.items() if k.startswith("net.")}
         model.net.load_state_dict(state, strict=True)
-    except (KeyError, TypeError, RuntimeError, RobocalError) as exc:
+    except (KeyError, TypeError, RuntimeError, tomllib.TOMLDecodeError, RobocalError) as exc:
         raise SnapshotError(
             f"snapshot does not match its metadata: {exc}".splitlines()[0]
         ) from None

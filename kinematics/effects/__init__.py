@@ -14,11 +14,13 @@ from kinematics.effects._base import (
     Restricted,
     coupling_matrix,
     ctrl_to_dh_delta,
+    dh_frames,
     dh_poses,
     dh_table,
     dh_to_ctrl_delta,
     frame_correction,
     perturbed_poses,
+    sensor_jacobians,
 )
 from kinematics.effects.backlash import Backlash
 from kinematics.effects.frames import BaseFrame, ToolFrame
@@ -66,9 +68,11 @@ __all__ = [
     "compliance_deflection",
     "coupling_matrix",
     "ctrl_to_dh_delta",
+    "dh_frames",
     "dh_poses",
     "dh_table",
     "dh_to_ctrl_delta",
     "frame_correction",
     "perturbed_poses",
+    "sensor_jacobians",
 ]

@@ -128,3 +128,18 @@ def test_jacobian_matches_finite_differences():
         dq[i] = h
         dp = (model.fk(q + dq)[0, :3, 3] - model.fk(q - dq)[0, :3, 3]) / (2 * h)
         np.testing.assert_allclose(J[:3, i], dp, atol=1e-6)
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_batched_sensor_jacobians_match_pinocchio(robot):
+    from kinematics.effects import coupling_matrix, sensor_jacobians
+
+    tool = np.array([[1, 0, 0, 0.1], [0, 1, 0, 0.05], [0, 0, 1, 0.35], [0, 0, 0, 1.0]])
+    desc = load_description(robot).with_tool(tool)
+    model = RobotModel(desc)
+    poses_and_jacobians = sensor_jacobians(desc)
+    for n in (1, 4, 5, 200):  # pinocchio's loop answers few poses, a numpy batch many
+        q = random_q(desc, n, seed=5)
+        T, J = poses_and_jacobians(q)
+        assert np.abs(T - model.fk(q)).max() < 1e-12
+        assert np.abs(J - model.jacobian(q) @ coupling_matrix(desc)).max() < 1e-12

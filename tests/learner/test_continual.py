@@ -23,7 +23,7 @@ def _region(rng, n, lo, hi):
 def _learner(strategy, memory=100, batch=25, epochs=30, seed=0):
     model = ErrorModel.create(
         SPEC,
-        ModelConfig(hidden_layers=2, neurons=24),
+        ModelConfig(hidden_layers=2, neurons=24, encoding="minmax"),
         TrainConfig(batch_size=32, lr=3e-3, max_epochs=150),
         seed=seed,
     )
@@ -34,6 +34,7 @@ def _learner(strategy, memory=100, batch=25, epochs=30, seed=0):
         strategy=strategy,
         epochs_per_update=epochs,
         init_epochs=150,
+        update_lr=3e-3,  # this toy learns each region in few, short updates
     )
     return ContinualLearner(model, cfg)
 

@@ -28,7 +28,10 @@ def fitted():
     X = rng.uniform(-1, 1, (300, 1))
     Y = X * np.array([2e-3, 1e-4, 1e-4, 1e-3, 0.0, 5e-4]) + rng.normal(0, 5e-5, (300, 6))
     m = ErrorModel.create(
-        SPEC, ModelConfig(hidden_layers=1, neurons=16), TrainConfig(max_epochs=60), 0
+        SPEC,
+        ModelConfig(hidden_layers=1, neurons=16, encoding="minmax"),
+        TrainConfig(max_epochs=60),
+        0,
     )
     m.fit(X[:200], Y[:200])
     return m, X[200:], Y[200:]

@@ -10,6 +10,7 @@ from learner.model import ErrorModel
 
 FANUC = load_description("fanuc_m900ib700")
 TINY = ModelConfig(hidden_layers=2, neurons=32)
+MINMAX = ModelConfig(hidden_layers=2, neurons=32, encoding="minmax")
 
 
 @pytest.fixture(scope="module")
@@ -18,9 +19,9 @@ def data(small_ds):
     return spec, dataset_features(small_ds, spec), dataset_labels(small_ds, RobotModel(FANUC))
 
 
-def _model(spec, seed=0, **train):
-    cfg = TrainConfig(**({"batch_size": 64, "lr": 3e-3, "max_epochs": 40} | train))
-    return ErrorModel.create(spec, TINY, cfg, seed=seed, robot=FANUC.name)
+def _model(spec, seed=0, cfg=TINY, **train):
+    train_cfg = TrainConfig(**({"batch_size": 64, "lr": 3e-3, "max_epochs": 40} | train))
+    return ErrorModel.create(spec, cfg, train_cfg, seed=seed, robot=FANUC.name)
 
 
 def _mean_mm(model, X, Y):
@@ -32,7 +33,7 @@ def test_fit_learns_and_is_reproducible():
     X = rng.uniform(-1, 1, (400, 2))
     Y = 1e-3 * np.sin(2 * X[:, :1] + np.arange(6)) * np.cos(X[:, 1:2])
     spec = FeatureSpec(names=("q1", "q2"), low=np.array([-1.0, -1.0]), high=np.array([1.0, 1.0]))
-    a, b = _model(spec), _model(spec)
+    a, b = _model(spec, cfg=MINMAX), _model(spec, cfg=MINMAX)
     ra, rb = a.fit(X[:300], Y[:300]), b.fit(X[:300], Y[:300])
     constant = np.linalg.norm(Y[300:, :3] - Y[:300, :3].mean(axis=0), axis=1).mean() * 1e3
     assert _mean_mm(a, X[300:], Y[300:]) < 0.2 * constant

@@ -25,7 +25,7 @@ def trained():
     Y = 1e-3 * np.sin(X[:, :1] + np.arange(6)) + rng.normal(0, 1e-5, (120, 6))
     m = ErrorModel.create(
         SPEC,
-        ModelConfig(hidden_layers=2, neurons=16, dropout=0.1),
+        ModelConfig(hidden_layers=2, neurons=16, dropout=0.1, encoding="minmax"),
         TrainConfig(max_epochs=5),
         3,
         robot="ur10",
@@ -67,9 +67,51 @@ def test_bad_snapshots_raise(trained, tmp_path):
         load_snapshot(tmp_path / "junk.safetensors")
     with pytest.raises(SnapshotError):
         snapshot_from_bytes(data[: len(data) // 2])
-    other = ErrorModel.create(SPEC, ModelConfig(hidden_layers=1, neurons=4), TrainConfig(), 0)
+    other = ErrorModel.create(
+        SPEC, ModelConfig(hidden_layers=1, neurons=4, encoding="minmax"), TrainConfig(), 0
+    )
     blob = snapshot_to_bytes(other)
     swapped = blob.replace(b'\\"hidden_layers\\": 1', b'\\"hidden_layers\\": 2')
     assert swapped != blob
     with pytest.raises(SnapshotError, match="does not match"):
         snapshot_from_bytes(swapped)
+
+
+def test_kinematic_model_reloads_bit_identically_with_its_tool(tmp_path):
+    from kinematics.description import load_description
+    from learner.features import feature_spec
+
+    tool = np.array([[0, -1, 0, 0.02], [1, 0, 0, 0.01], [0, 0, 1, 0.3], [0, 0, 0, 1.0]])
+    desc = load_description("ur10").with_tool(tool)
+    spec = feature_spec(desc, n_temperatures=1, has_secondary=True)
+    rng = np.random.default_rng(1)
+    X = np.hstack(
+        [rng.uniform(-3, 3, (80, 6)), rng.normal(0, 1e-4, (80, 6)), rng.uniform(15, 40, (80, 1))]
+    )
+    Y = 1e-3 * np.sin(X[:, :1] + np.arange(6))
+    m = ErrorModel.create(
+        spec, ModelConfig(hidden_layers=1, neurons=8), TrainConfig(max_epochs=3), 0
+    )
+    m.fit(X, Y)
+    back = load_snapshot(save_snapshot(m, tmp_path / "k.safetensors"))
+    assert back.model_cfg.encoding == "kinematic"
+    np.testing.assert_array_equal(back.spec.description.tool, tool)
+    np.testing.assert_array_equal(back.predict(X).gamma, m.predict(X).gamma)
+    np.testing.assert_array_equal(back.predict(X).beta, m.predict(X).beta)
+
+
+def test_version_1_snapshots_load_as_minmax(trained):
+    import json
+
+    from safetensors.torch import load as st_load
+    from safetensors.torch import save as st_save
+
+    m, X = trained
+    data = snapshot_to_bytes(m)
+    meta = snapshot_meta(data)
+    meta["version"] = 1
+    del meta["description"], meta["model_config"]["encoding"]
+    old = st_save(st_load(data), metadata={"robocal": json.dumps(meta)})
+    back = snapshot_from_bytes(old)
+    assert back.model_cfg.encoding == "minmax"
+    np.testing.assert_array_equal(back.predict(X).gamma, m.predict(X).gamma)

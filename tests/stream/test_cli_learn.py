@@ -81,7 +81,7 @@ def test_experiment_quick(data_file, tmp_path, capsys, monkeypatch):
     text = capsys.readouterr().out
     assert "joints only" in text and "n_B=60, N_m=40" in text
     rows = json.loads((tmp_path / "study.json").read_text())["rows"]
-    assert len(rows) == 4 + 1 + 1
+    assert len(rows) == 5 + 1 + 1  # five feature/encoding rows, one size, one continual
     assert (tmp_path / "size.png").exists()
 
 
