@@ -1,7 +1,9 @@
 """Learner accuracy on the simulated paper campaign (90/10 split): batch, continual max-error
 replay (N_m=500, n_B=100), naive fine-tuning, interval coverage and the epistemic ratio.
 
-    .venv/bin/python bench/learner_paper.py [--data /tmp/paper.parquet]
+    .venv/bin/python bench/learner_paper.py [--data /tmp/paper.parquet] [--model '{"members": 1}']
+
+``--model`` overrides ModelConfig fields (JSON) for every model of the run.
 """
 
 import argparse
@@ -22,8 +24,8 @@ from learner.model import ErrorModel
 from learner.workflow import prepare
 
 
-def continual(p, strategy, train):
-    model = ErrorModel.create(p.spec, ModelConfig(), TrainConfig(), 0, p.robot)
+def continual(p, strategy, train, model_cfg):
+    model = ErrorModel.create(p.spec, model_cfg, TrainConfig(), 0, p.robot)
     learner = ContinualLearner(model, ContinualConfig(memory=500, batch=100, strategy=strategy))
     start = time.perf_counter()
     learner.initialize(p.X[train[:50]], p.Y[train[:50]])
@@ -42,7 +44,9 @@ def continual(p, strategy, train):
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--data", default="/tmp/paper.parquet")
+    ap.add_argument("--model", default="{}", help="ModelConfig overrides as JSON")
     args = ap.parse_args()
+    model_cfg = ModelConfig(**json.loads(args.model))
     torch.set_num_threads(1)
     if not Path(args.data).exists():
         subprocess.run(
@@ -66,11 +70,12 @@ def main() -> None:
     ds = read_dataset(args.data)
     p = prepare(ds, test_fraction=0.1, seed=0)
     out = {
+        "model_config": model_cfg.__dict__,
         "noise_floor_mm": 1e3 * ds.meta.noise_floor_m,
         "uncalibrated_test_mean_mm": float(np.linalg.norm(p.Y[p.test, :3], axis=1).mean() * 1e3),
     }
     start = time.perf_counter()
-    batch = ErrorModel.create(p.spec, ModelConfig(), TrainConfig(), 0, p.robot)
+    batch = ErrorModel.create(p.spec, model_cfg, TrainConfig(), 0, p.robot)
     rep = batch.fit(p.X[p.train], p.Y[p.train])
     out["batch"] = accuracy_report(batch, p.X[p.test], p.Y[p.test]).to_dict()
     out["batch"] |= {
@@ -81,7 +86,7 @@ def main() -> None:
     print(json.dumps({"batch": out["batch"]}), flush=True)
     train = np.sort(p.train)
     for strategy in ("max_error", "naive"):
-        r, wall, early, first = continual(p, strategy, train)
+        r, wall, early, first = continual(p, strategy, train, model_cfg)
         out[strategy] = r.to_dict() | {
             "wall_s": wall,
             "first550_after_550_mm": early,
@@ -95,15 +100,25 @@ def main() -> None:
     rng.shuffle(left)
     held, fit_idx = left[:200], left[200:]
     right = np.flatnonzero(q1 >= 0)
-    half = ErrorModel.create(p.spec, ModelConfig(), TrainConfig(), 0, p.robot)
+    half = ErrorModel.create(p.spec, model_cfg, TrainConfig(), 0, p.robot)
     half.fit(p.X[fit_idx], p.Y[fit_idx])
-    ep_in = half.predict(p.X[held]).epistemic()[:, :3].mean()
-    ep_out = half.predict(p.X[right]).epistemic()[:, :3].mean()
+    # Per point: the epistemic variance of the position, summed over x, y, z (m²).
+    var_in = half.predict(p.X[held]).epistemic()[:, :3].sum(axis=1)
+    var_out = half.predict(p.X[right]).epistemic()[:, :3].sum(axis=1)
+    ep_in, ep_out = var_in.mean(), var_out.mean()
+    rep_in = accuracy_report(half, p.X[held], p.Y[held])
+    rep_out = accuracy_report(half, p.X[right], p.Y[right])
     out["epistemic"] = {
         "in_mean_var": float(ep_in),
         "out_mean_var": float(ep_out),
         "ratio_var": float(ep_out / ep_in),
         "ratio_std": float(np.sqrt(ep_out / ep_in)),
+        "median_ratio_var": float(np.median(var_out) / np.median(var_in)),
+        "other_above_trained_p90": float(np.mean(var_out > np.percentile(var_in, 90))),
+        "trained_half_mean_mm": rep_in.mean_mm,
+        "other_half_mean_mm": rep_out.mean_mm,
+        "trained_half_coverage_90": rep_in.coverage_90,
+        "other_half_coverage_90": rep_out.coverage_90,
         "n_train": len(fit_idx),
         "n_held": len(held),
         "n_other": len(right),

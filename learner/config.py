@@ -29,13 +29,16 @@ def _check(cond: bool, msg: str) -> None:
 
 @dataclass(frozen=True, kw_only=True)
 class ModelConfig:
-    """Shape of each of the six per-component MLPs and how raw features become their inputs
+    """Shape of each of the six per-component MLPs, how many independently initialised
+    ``members`` each component has (their disagreement adds to the epistemic variance, see
+    :func:`learner.evidential.combine_members`) and how raw features become their inputs
     (``encoding``, see :mod:`learner.encoding`)."""
 
-    hidden_layers: int = 3
+    hidden_layers: int = 2
     neurons: int = 64
     activation: str = "gelu"
     dropout: float = 0.0
+    members: int = 2
     encoding: str = "kinematic"
 
     def __post_init__(self) -> None:
@@ -52,6 +55,10 @@ class ModelConfig:
             f"model.activation must be one of {ACTIVATIONS}, got {self.activation!r}",
         )
         _check(0.0 <= self.dropout < 1.0, f"model.dropout must be in [0, 1), got {self.dropout}")
+        _check(
+            isinstance(self.members, int) and 1 <= self.members <= 16,
+            f"model.members must be an int in [1, 16], got {self.members!r}",
+        )
         _check(
             self.encoding in ENCODINGS,
             f"model.encoding must be one of {ENCODINGS}, got {self.encoding!r}",
@@ -102,9 +109,11 @@ class TrainConfig:
 @dataclass(frozen=True, kw_only=True)
 class ContinualConfig:
     """Continual learning: memory ``N_m``, batch ``n_B``, ``init`` points for the first model,
-    the replay ``strategy``, and the epochs and learning rate of the warm-started training
-    after each batch (fine-tuning, below the first fit's rate: a fresh Adam at the full rate
-    moves every weight and forgets what the memory no longer holds)."""
+    the replay ``strategy``, the epochs and learning rate of the warm-started training after
+    each batch (fine-tuning, below the first fit's rate: a fresh Adam at the full rate moves
+    every weight and forgets what the memory no longer holds), and the ``holdout`` share of
+    each batch kept out of training in a first-in-first-out set of ``calibration_size`` points
+    on which the intervals are calibrated."""
 
     memory: int = 500
     batch: int = 100
@@ -113,10 +122,13 @@ class ContinualConfig:
     epochs_per_update: int = 60
     init_epochs: int = 300
     update_lr: float = 1e-3
+    holdout: float = 0.1
+    calibration_size: int = 200
     seed: int = 0
 
     def __post_init__(self) -> None:
-        for key in ("memory", "batch", "init", "epochs_per_update", "init_epochs"):
+        counts = ("memory", "batch", "init", "epochs_per_update", "init_epochs", "calibration_size")
+        for key in counts:
             value = getattr(self, key)
             _check(
                 isinstance(value, int) and value >= 1,
@@ -129,5 +141,8 @@ class ContinualConfig:
         _check(
             0.0 < self.update_lr < 1.0,
             f"continual.update_lr must be in (0, 1), got {self.update_lr}",
+        )
+        _check(
+            0.0 <= self.holdout < 1.0, f"continual.holdout must be in [0, 1), got {self.holdout}"
         )
         _check(isinstance(self.seed, int), f"continual.seed must be an int, got {self.seed!r}")

@@ -1,8 +1,8 @@
-"""Six independent evidential MLPs evaluated together with batched weight tensors.
+"""Independent evidential MLPs evaluated together with batched weight tensors.
 
 Each layer holds one weight tensor ``(H, in, out)`` for all ``H`` heads (one head per label
-component), so a forward pass is one ``torch.baddbmm`` per layer instead of ``H`` separate
-matmuls; the heads share no parameter and train independently.
+component, times the ensemble members), so a forward pass is one ``torch.baddbmm`` per layer
+instead of ``H`` separate matmuls; the heads share no parameter and train independently.
 
 >>> import torch
 >>> net = EvidentialEnsemble(n_inputs=6, hidden_layers=2, neurons=16, seed=0)

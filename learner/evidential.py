@@ -61,6 +61,24 @@ def evidential_loss(
     return (nig_nll(y, gamma, nu, alpha, beta) + lam * nig_regularizer(y, gamma, nu, alpha)).mean()
 
 
+def combine_members(
+    gamma: torch.Tensor, nu: torch.Tensor, alpha: torch.Tensor, beta: torch.Tensor, members: int
+) -> tuple[torch.Tensor, ...]:
+    """One NIG per component from ``members`` independently trained NIGs (heads ``(N, M * C)``,
+    member-major): the mean of the members' ``gamma`` and ``alpha``, their mean aleatoric
+    variance, and as epistemic variance their mean epistemic variance plus the variance of
+    their ``gamma`` — members that disagree do not know. ``beta`` and ``nu`` follow from
+    ``aleatoric = beta / (alpha - 1)`` and ``epistemic = beta / (nu (alpha - 1))``.
+    """
+    if members == 1:
+        return gamma, nu, alpha, beta
+    g, n, a, b = (t.reshape(t.shape[0], members, -1) for t in (gamma, nu, alpha, beta))
+    alea = (b / (a - 1.0)).mean(dim=1)
+    epi = (b / (n * (a - 1.0))).mean(dim=1) + g.var(dim=1, unbiased=False)
+    alpha_c = a.mean(dim=1)
+    return g.mean(dim=1), alea / epi, alpha_c, alea * (alpha_c - 1.0)
+
+
 @dataclass(frozen=True, kw_only=True)
 class Evidential:
     """NIG parameters ``(N, 6)`` in label units (m for position, rad for orientation)."""

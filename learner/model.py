@@ -1,9 +1,9 @@
 """``ErrorModel``: the pose-error estimator (network, fixed scalers, configs, feature names).
 
-Inputs are min-max scaled by the :class:`~learner.features.FeatureSpec` (fixed from the robot
-description); labels are standardised per component by a mean and std fixed on the model's
-first ``fit`` and never changed afterwards. Validation MSE is in these scaled label units
-(1.0 = the spread of the first training labels).
+Inputs are encoded from the raw features by :mod:`learner.encoding` on scales fixed by the
+robot description (:class:`~learner.features.FeatureSpec`); labels are standardised per
+component by a mean and std fixed on the model's first ``fit`` and never changed afterwards.
+Validation MSE is in these scaled label units (1.0 = the spread of the first training labels).
 
 >>> from kinematics.description import load_description
 >>> from learner.features import feature_spec
@@ -27,7 +27,7 @@ from kinematics.errors import DatasetError
 from learner.config import ModelConfig, TrainConfig
 from learner.encoding import input_encoder, n_inputs
 from learner.ensemble import EvidentialEnsemble
-from learner.evidential import Evidential, evidential_loss
+from learner.evidential import Evidential, combine_members, evidential_loss
 from learner.features import FeatureSpec
 
 N_LABELS = 6
@@ -82,7 +82,7 @@ class ErrorModel:
             neurons=model_cfg.neurons,
             activation=model_cfg.activation,
             dropout=model_cfg.dropout,
-            n_heads=N_LABELS,
+            n_heads=N_LABELS * model_cfg.members,
             seed=seed,
         )
         self._encode = input_encoder(spec, model_cfg.encoding)
@@ -134,10 +134,11 @@ class ErrorModel:
     # -- prediction ----------------------------------------------------------------------------
 
     def predict_scaled(self, Xs: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        """NIG outputs in scaled label units for scaled features (no grad, eval mode)."""
+        """NIG outputs ``(N, 6)`` in scaled label units for scaled features, the members
+        combined (no grad, eval mode)."""
         self.net.eval()
         with torch.inference_mode():
-            return self.net(Xs)
+            return combine_members(*self.net(Xs), self.model_cfg.members)
 
     def predict(self, X: np.ndarray) -> Evidential:
         """NIG prediction in label units (m, rad) for raw SI features ``(N, F)``."""
@@ -241,6 +242,7 @@ def _train_loop(
     start = time.perf_counter()
     n = Xs.shape[0]
     bs = min(cfg.batch_size, n)
+    Y_heads = Ys.repeat(1, model.model_cfg.members)  # every member learns every component
     best, best_epoch, best_state = float("inf"), 0, None
     history: list[float] = []
     skipped = 0
@@ -253,7 +255,7 @@ def _train_loop(
         for i in range(0, n, bs):
             idx = perm[i : i + bs]
             gamma, nu, alpha, beta = net(Xs[idx])
-            loss = evidential_loss(Ys[idx], gamma, nu, alpha, beta, cfg.lam)
+            loss = evidential_loss(Y_heads[idx], gamma, nu, alpha, beta, cfg.lam)
             opt.zero_grad(set_to_none=True)
             if not torch.isfinite(loss):
                 skipped += 1

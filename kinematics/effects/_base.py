@@ -284,17 +284,19 @@ def _fixed_parts(dh: np.ndarray) -> np.ndarray:
 
 def _chain(theta: np.ndarray, fixed: np.ndarray) -> np.ndarray:
     """Frames ``(N, n + 1, 4, 4)`` of ``prod_i Rz(theta_i) fixed_i`` for joint angles ``(N, n)``
-    (DH variable plus offset): ``Rz`` mixes the first two rows of each fixed part."""
+    (DH variable plus offset): ``Rz`` mixes the first two rows of each fixed part. Computed
+    joint-major, so each step multiplies contiguous ``(N, 4, 4)`` stacks."""
     N, n = theta.shape
-    c, s = np.cos(theta)[..., None], np.sin(theta)[..., None]
-    A = np.array(np.broadcast_to(fixed, (N, n, 4, 4)))
+    fixed = np.moveaxis(np.broadcast_to(fixed, (N, n, 4, 4)), 1, 0)
+    c, s = np.cos(theta).T[..., None], np.sin(theta).T[..., None]
+    A = np.array(fixed)
     A[..., 0, :] = c * fixed[..., 0, :] - s * fixed[..., 1, :]
     A[..., 1, :] = s * fixed[..., 0, :] + c * fixed[..., 1, :]
-    frames = np.empty((N, n + 1, 4, 4))
-    frames[:, 0] = np.eye(4)
+    frames = np.empty((n + 1, N, 4, 4))
+    frames[0] = np.eye(4)
     for k in range(n):
-        frames[:, k + 1] = frames[:, k] @ A[:, k]
-    return frames
+        np.matmul(frames[k], A[k], out=frames[k + 1])
+    return frames.transpose(1, 0, 2, 3)
 
 
 def perturbed_poses(

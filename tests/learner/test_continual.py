@@ -20,7 +20,7 @@ def _region(rng, n, lo, hi):
     return X, _target(X)
 
 
-def _learner(strategy, memory=100, batch=25, epochs=30, seed=0):
+def _learner(strategy, memory=100, batch=25, epochs=30, seed=0, holdout=0.0):
     model = ErrorModel.create(
         SPEC,
         ModelConfig(hidden_layers=2, neurons=24, encoding="minmax"),
@@ -35,6 +35,8 @@ def _learner(strategy, memory=100, batch=25, epochs=30, seed=0):
         epochs_per_update=epochs,
         init_epochs=150,
         update_lr=3e-3,  # this toy learns each region in few, short updates
+        holdout=holdout,
+        calibration_size=20,
     )
     return ContinualLearner(model, cfg)
 
@@ -120,6 +122,24 @@ def test_state_roundtrip_continues_identically(two_regions):
     ma, mb = a.update(X[75:100], Y[75:100]), b.update(X[75:100], Y[75:100])
     np.testing.assert_array_equal(a.memory.x, b.memory.x)
     assert ma.memory_size == mb.memory_size
+
+
+def test_held_out_points_calibrate_and_are_never_trained(two_regions):
+    X, Y, _, _ = two_regions
+    learner = _learner("full", memory=200, epochs=2, holdout=0.2)
+    _stream(learner, X[:125], Y[:125])
+    state = learner.state_dict()
+    held, memory = state["holdout_x"], learner.memory.x
+    assert len(held) == 20  # 5 per batch of 25, the latest 20 of 4 updates
+    assert not {tuple(r) for r in held} & {tuple(r) for r in memory}
+    assert len(memory) == 25 + 4 * 20 and learner.n_seen == 125
+    scale = learner.model.interval_scale.copy()
+    np.testing.assert_allclose(
+        learner.model.calibrate(held, Y[np.isin(X[:, 0], held[:, 0])]), scale
+    )
+    back = _learner("full", memory=200, epochs=2, holdout=0.2)
+    back.load_state(state_from_bytes(state_to_bytes(state)))
+    np.testing.assert_array_equal(back.state_dict()["holdout_x"], held)
 
 
 def test_bad_batches_and_states_raise():

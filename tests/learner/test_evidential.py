@@ -92,3 +92,31 @@ def test_uncertainties_and_bad_level():
     assert ev.epistemic()[0, 0] == pytest.approx(0.25)
     with pytest.raises(ConfigError, match="level"):
         ev.interval(1.5)
+
+
+def test_combined_members_keep_aleatoric_and_add_disagreement_to_epistemic():
+    from learner.evidential import combine_members
+
+    gen = torch.Generator().manual_seed(0)
+    n, m, c = 5, 3, 6
+    gamma = torch.randn(n, m * c, generator=gen, dtype=torch.float64)
+    nu, alpha, beta = (
+        torch.rand(n, m * c, generator=gen, dtype=torch.float64) + low for low in (0.1, 1.5, 0.1)
+    )
+
+    def nig(tensors):
+        return Evidential(**dict(zip(("gamma", "nu", "alpha", "beta"), tensors, strict=True)))
+
+    each = [
+        nig(t.reshape(n, m, c)[:, j].numpy() for t in (gamma, nu, alpha, beta)) for j in range(m)
+    ]
+    both = nig(t.numpy() for t in combine_members(gamma, nu, alpha, beta, m))
+    gammas = np.stack([e.gamma for e in each])
+    np.testing.assert_allclose(both.gamma, gammas.mean(0))
+    np.testing.assert_allclose(both.aleatoric(), np.mean([e.aleatoric() for e in each], 0))
+    expected_epi = np.mean([e.epistemic() for e in each], 0) + gammas.var(0)
+    np.testing.assert_allclose(both.epistemic(), expected_epi)
+    same = combine_members(*(t[:, :c].repeat(1, m) for t in (gamma, nu, alpha, beta)), m)
+    for got, want in zip(same, (gamma[:, :c], nu[:, :c], alpha[:, :c], beta[:, :c]), strict=True):
+        torch.testing.assert_close(got, want)
+    assert combine_members(gamma, nu, alpha, beta, 1)[0] is gamma

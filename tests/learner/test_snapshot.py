@@ -90,11 +90,11 @@ def test_kinematic_model_reloads_bit_identically_with_its_tool(tmp_path):
     )
     Y = 1e-3 * np.sin(X[:, :1] + np.arange(6))
     m = ErrorModel.create(
-        spec, ModelConfig(hidden_layers=1, neurons=8), TrainConfig(max_epochs=3), 0
+        spec, ModelConfig(hidden_layers=1, neurons=8, members=2), TrainConfig(max_epochs=3), 0
     )
     m.fit(X, Y)
     back = load_snapshot(save_snapshot(m, tmp_path / "k.safetensors"))
-    assert back.model_cfg.encoding == "kinematic"
+    assert back.model_cfg.encoding == "kinematic" and back.model_cfg.members == 2
     np.testing.assert_array_equal(back.spec.description.tool, tool)
     np.testing.assert_array_equal(back.predict(X).gamma, m.predict(X).gamma)
     np.testing.assert_array_equal(back.predict(X).beta, m.predict(X).beta)
