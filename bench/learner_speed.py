@@ -43,11 +43,11 @@ def separate_models(n_in, cfg: ModelConfig):
             width = cfg.neurons
         return nn.Sequential(*layers, nn.Linear(width, 4))
 
-    return nn.ModuleList([mlp() for _ in range(6)])
+    return nn.ModuleList([mlp() for _ in range(6 * cfg.members)])
 
 
 def separate_forward(models, x):
-    outs = torch.stack([m(x) for m in models], dim=1)  # (N, 6, 4)
+    outs = torch.stack([m(x) for m in models], dim=1)  # (N, heads, 4)
     sp = nn.functional.softplus
     return outs[..., 0], sp(outs[..., 1]), sp(outs[..., 2]) + 1, sp(outs[..., 3])
 
@@ -89,7 +89,7 @@ def main() -> None:
     width = n_inputs(spec, cfg.encoding)
     seq = separate_models(width, cfg)
     xb = torch.randn(64, width)
-    yb = torch.randn(64, 6)
+    yb = torch.randn(64, 6 * cfg.members)
     for name, params, fwd in (
         ("batched", net.parameters(), net),
         ("separate", seq.parameters(), lambda x: separate_forward(seq, x)),
