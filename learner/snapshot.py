@@ -4,7 +4,8 @@ The metadata (under the safetensors header key ``robocal``) holds the schema ver
 its description (TOML text, for the kinematic input encoding), feature names, model/train
 configs, seed and training metrics; the tensors hold the network weights, the fixed scalers and
 the sensor transform ``T_6_S`` (float64, so predictions after a reload are bit-identical).
-Version 1 snapshots (before the input encoding existed) load as ``encoding = "minmax"``.
+Version 1 snapshots (before input encodings and members existed) load as ``encoding =
+"minmax"``, one member.
 
 >>> from kinematics.description import load_description
 >>> from learner.config import ModelConfig, TrainConfig
@@ -39,6 +40,8 @@ from learner.model import ErrorModel
 SCHEMA = "robocal.model"
 SCHEMA_VERSION = 2
 _READABLE_VERSIONS = (1, 2)
+#: What version 1 snapshots, written before these fields existed, were.
+_V1_MODEL = {"encoding": "minmax", "members": 1}
 _META_KEY = "robocal"
 _SCALERS = ("feature_low", "feature_high", "label_mean", "label_std", "interval_scale")
 
@@ -116,7 +119,7 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
         )
         model = ErrorModel(
             spec=spec,
-            model_cfg=ModelConfig(**({"encoding": "minmax"} | meta["model_config"])),
+            model_cfg=ModelConfig(**(_V1_MODEL | meta["model_config"])),
             train_cfg=TrainConfig(**meta["train_config"]),
             seed=int(meta["seed"]),
             robot=str(meta["robot"]),

@@ -106,12 +106,15 @@ def test_version_1_snapshots_load_as_minmax(trained):
     from safetensors.torch import load as st_load
     from safetensors.torch import save as st_save
 
-    m, X = trained
+    _, X = trained
+    cfg = ModelConfig(hidden_layers=1, neurons=8, members=1, encoding="minmax")
+    m = ErrorModel.create(SPEC, cfg, TrainConfig(max_epochs=3), 0)
+    m.fit(X, 1e-3 * np.sin(X[:, :1] + np.arange(6)))
     data = snapshot_to_bytes(m)
     meta = snapshot_meta(data)
     meta["version"] = 1
-    del meta["description"], meta["model_config"]["encoding"]
+    del meta["description"], meta["model_config"]["encoding"], meta["model_config"]["members"]
     old = st_save(st_load(data), metadata={"robocal": json.dumps(meta)})
     back = snapshot_from_bytes(old)
-    assert back.model_cfg.encoding == "minmax"
+    assert back.model_cfg.encoding == "minmax" and back.model_cfg.members == 1
     np.testing.assert_array_equal(back.predict(X).gamma, m.predict(X).gamma)
