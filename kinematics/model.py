@@ -134,10 +134,4 @@ class RobotModel:
 
     def jacobian(self, q_ctrl: np.ndarray) -> np.ndarray:
         """Tool Jacobians ``(N, 6, n)`` w.r.t. DH joint variables (world-aligned at the tool)."""
-        q = self.description.to_dh(np.atleast_2d(q_ctrl))
-        out = np.empty((q.shape[0], 6, q.shape[1]))
-        for k in range(q.shape[0]):
-            out[k] = pin.computeFrameJacobian(
-                self.model, self.data, q[k], self._tool, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-            )
-        return out
+        return self.fk_and_jacobian(q_ctrl)[1]

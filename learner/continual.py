@@ -25,13 +25,11 @@ from safetensors.numpy import save as np_save
 
 from kinematics.errors import DatasetError, SnapshotError
 from learner.config import ContinualConfig
-from learner.model import ErrorModel, TrainReport
+from learner.model import MIN_CALIBRATION, ErrorModel, TrainReport
 from learner.replay import replay_strategy
 from learner.snapshot import snapshot_from_bytes, snapshot_to_bytes
 
 STATE_SCHEMA = "robocal.continual"
-#: Fewest held-out points the intervals are recalibrated on after an update.
-_MIN_CALIBRATION = 5
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -109,7 +107,7 @@ class ContinualLearner:
             return self.initialize(pool_x, pool_y)
         n_in = len(X_new)
         held = np.zeros(n_in, dtype=bool)
-        held[self.rng.permutation(len(X_new))[: int(self.cfg.holdout * len(X_new))]] = True
+        held[self.rng.permutation(n_in)[: int(self.cfg.holdout * n_in)]] = True
         keep_last = self.cfg.calibration_size
         self._cal_x = np.concatenate([self._cal_x, X_new[held]])[-keep_last:]
         self._cal_y = np.concatenate([self._cal_y, Y_new[held]])[-keep_last:]
@@ -132,7 +130,7 @@ class ContinualLearner:
             val_fraction=0.0,
             lr=self.cfg.update_lr,
         )
-        if len(self._cal_x) >= _MIN_CALIBRATION:
+        if len(self._cal_x) >= MIN_CALIBRATION:
             self.model.calibrate(self._cal_x, self._cal_y)
         self.version += 1
         new_kept = int(np.sum(keep >= len(pool_x) - len(X_new)))

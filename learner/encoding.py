@@ -30,7 +30,7 @@ from collections.abc import Callable
 import numpy as np
 
 from kinematics.description import RobotDescription
-from kinematics.effects import sensor_jacobians
+from kinematics.effects import dh_table, sensor_jacobians
 from kinematics.errors import ConfigError
 from learner.config import ENCODINGS
 from learner.features import FeatureSpec
@@ -60,7 +60,7 @@ def input_encoder(spec: FeatureSpec, encoding: str) -> Callable[[np.ndarray], np
         return spec.scale
     n_q, n_dtheta, _ = _counts(spec, encoding)
     desc = spec.description
-    offsets = np.deg2rad([j.offset_deg for j in desc.joints])
+    offsets = dh_table(desc)[:, 4]
     reach = reach_m(desc)
     poses_and_jacobians = sensor_jacobians(desc)
     moved_scale = np.repeat(
@@ -69,12 +69,13 @@ def input_encoder(spec: FeatureSpec, encoding: str) -> Callable[[np.ndarray], np
 
     def encode(X: np.ndarray) -> np.ndarray:
         scaled = spec.scale(X)  # checks the shape
-        q = np.asarray(X, dtype=float)[:, :n_q]
+        X = np.asarray(X, dtype=float)
+        q = X[:, :n_q]
         q_dh = desc.to_dh(q) + offsets
         T, J = poses_and_jacobians(q)
         parts = [np.sin(q_dh), np.cos(q_dh), T[:, :3, 3] / reach, T[:, :3, :3].reshape(-1, 9)]
         if n_dtheta:
-            dtheta = np.asarray(X, dtype=float)[:, n_q : 2 * n_q]
+            dtheta = X[:, n_q : 2 * n_q]
             parts.append(np.einsum("nij,nj->ni", J, dtheta) / moved_scale)
         parts.append(scaled[:, n_q + n_dtheta :])
         return np.concatenate(parts, axis=1)

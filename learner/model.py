@@ -33,8 +33,8 @@ from learner.features import FeatureSpec
 N_LABELS = 6
 #: Gradients are clipped to this total norm (scaled units); a non-finite norm skips the step.
 _MAX_GRAD_NORM = 100.0
-#: Fewest held-out points :meth:`ErrorModel.fit` calibrates the interval scale on.
-_MIN_CALIBRATION = 5
+#: Fewest held-out points the interval scale is calibrated on (fit, continual updates).
+MIN_CALIBRATION = 5
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -216,7 +216,7 @@ class ErrorModel:
         val = None if X_val is None else (self.scale_x(X_val), self.scale_y(Y_val))
         epochs = max_epochs or cfg.max_epochs
         report = _train_loop(self, Xs, Ys, val, gen, epochs, lr or cfg.lr, on_epoch)
-        if X_val is not None and len(X_val) >= _MIN_CALIBRATION:
+        if X_val is not None and len(X_val) >= MIN_CALIBRATION:
             self.calibrate(X_val, Y_val)
         return report
 
