@@ -8,7 +8,8 @@ every batch never enters the pool: it joins a first-in-first-out set of the late
 ``calibration_size`` such points, on which the intervals are calibrated after each training —
 data the model was never trained on, like the batch model's validation split. (Calibrating on
 the new batch before training on it, the obvious alternative, let the 90 % coverage swing
-between 73 % and 95 % from one update to the next; see BENCHMARKS.md.) Until ``init`` points have
+between 73 % and 95 % from one update to the next; see BENCHMARKS.md.) The same set chooses
+which epoch's weights an update keeps, as in batch training. Until ``init`` points have
 arrived, updates only collect points; then the first model is trained on them.
 """
 
@@ -122,16 +123,17 @@ class ContinualLearner:
         keep = np.sort(keep)
         self._mem_x, self._mem_y = pool_x[keep], pool_y[keep]
         self.n_seen += n_in  # held-out points included: every point the learner was given
+        # The held-out set also picks the best epoch (and fit calibrates on it).
+        val = (self._cal_x, self._cal_y) if len(self._cal_x) >= MIN_CALIBRATION else (None, None)
         start = time.perf_counter()
         report = self.model.fit(
             self._mem_x,
             self._mem_y,
+            *val,
             max_epochs=self.cfg.epochs_per_update,
             val_fraction=0.0,
             lr=self.cfg.update_lr,
         )
-        if len(self._cal_x) >= MIN_CALIBRATION:
-            self.model.calibrate(self._cal_x, self._cal_y)
         self.version += 1
         new_kept = int(np.sum(keep >= len(pool_x) - len(X_new)))
         batch_err = np.linalg.norm((pred - pool_y)[-len(X_new) :, :3], axis=1)
