@@ -1,3 +1,5 @@
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -152,3 +154,29 @@ def test_bad_batches_and_states_raise():
         state_from_bytes(b"garbage")
     with pytest.raises(SnapshotError, match="incomplete"):
         learner.load_state({"n_seen": 1})
+
+
+def _holdout_mse(learner):
+    """The validation score of ``ErrorModel.fit``: MSE of the scaled means on the held-out set."""
+    held = learner.state_dict()
+    model = learner.model
+    gamma = model.predict_scaled(model.scale_x(held["holdout_x"]))[0]
+    return float(((gamma - model.scale_y(held["holdout_y"])) ** 2).mean())
+
+
+def test_an_update_keeps_the_weights_best_on_the_held_out_set(two_regions):
+    # From the same state, a longer update can only end at least as good on the held-out set:
+    # its candidate epochs include the shorter one's. Noisy labels and a high rate make the
+    # last epochs overfit, so keeping the last weights fails this test.
+    X, Y, _, _ = two_regions
+    Y = Y + 1e-3 * np.random.default_rng(3).standard_normal(Y.shape)
+    start = _learner("max_error", epochs=5, holdout=0.2)
+    _stream(start, X[:75], Y[:75])
+    scores = []
+    for epochs in (5, 40):
+        learner = _learner("max_error", holdout=0.2)
+        learner.cfg = replace(learner.cfg, epochs_per_update=epochs, update_lr=0.05)
+        learner.load_state(start.state_dict())
+        learner.update(X[75:100], Y[75:100])
+        scores.append(_holdout_mse(learner))
+    assert scores[1] <= scores[0] + 1e-9
