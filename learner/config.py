@@ -113,7 +113,7 @@ class ContinualConfig:
     each batch (fine-tuning, below the first fit's rate: a fresh Adam at the full rate moves
     every weight and forgets what the memory no longer holds), and the ``holdout`` share of
     each batch kept out of training in a first-in-first-out set of ``calibration_size`` points
-    on which the intervals are calibrated."""
+    that picks the epoch each update keeps and on which the intervals are calibrated."""
 
     memory: int = 500
     batch: int = 100

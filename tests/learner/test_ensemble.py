@@ -2,7 +2,7 @@ import pytest
 import torch
 
 from kinematics.errors import ConfigError
-from learner.ensemble import EvidentialEnsemble
+from learner.ensemble import PER_HEAD_ROWS, EvidentialEnsemble
 
 
 def _net(**kw):
@@ -27,9 +27,13 @@ def test_heads_are_independent():
         assert torch.all(grads[[0, 1, 3, 4, 5]] == 0)
 
 
-def test_matches_six_separate_mlps():
-    net = _net(activation="relu")
-    x = torch.randn(7, 5)
+@pytest.mark.parametrize(
+    "training, rows", [(True, PER_HEAD_ROWS), (False, 7), (False, PER_HEAD_ROWS)]
+)
+def test_matches_six_separate_mlps(training, rows):
+    # Few rows, or training, take the batched path; evaluating many rows goes head by head.
+    net = _net(activation="relu").train(training)
+    x = torch.randn(rows, 5)
     gamma, nu, alpha, beta = net(x)
     for head in range(6):
         h = x
