@@ -1,0 +1,82 @@
+"""How much the replay memory costs: continual max-error replay (n_B=100) at several memory
+sizes N_m against reservoir replay, full retraining and a batch model trained on N_m random
+points, on the simulated paper campaign (90/10 split). Seeds vary the weights, the hold-out
+draw and the random subset.
+
+    .venv/bin/python bench/learner_memory.py [--data /tmp/paper.parquet] [--seeds 3]
+"""
+
+import argparse
+import json
+import time
+
+import numpy as np
+import torch
+
+from kinematics.dataset import read_dataset
+from learner.config import ContinualConfig, ModelConfig, TrainConfig
+from learner.continual import ContinualLearner
+from learner.metrics import accuracy_report
+from learner.model import ErrorModel
+from learner.workflow import prepare
+
+
+def continual(p, train, strategy: str, memory: int, seed: int) -> dict:
+    model = ErrorModel.create(p.spec, ModelConfig(), TrainConfig(seed=seed), seed, p.robot)
+    cfg = ContinualConfig(memory=memory, batch=100, strategy=strategy, seed=seed)
+    learner = ContinualLearner(model, cfg)
+    start = time.perf_counter()
+    learner.update(p.X[train[:50]], p.Y[train[:50]])
+    for i in range(50, len(train), 100):
+        learner.update(p.X[train[i : i + 100]], p.Y[train[i : i + 100]])
+    rep = accuracy_report(learner.model, p.X[p.test], p.Y[p.test])
+    return {
+        "mean_mm": rep.mean_mm,
+        "coverage_90": rep.coverage_90,
+        "wall_s": time.perf_counter() - start,
+    }
+
+
+def batch_subset(p, n: int, seed: int) -> dict:
+    subset = np.random.default_rng(seed).choice(p.train, n, replace=False)
+    model = ErrorModel.create(p.spec, ModelConfig(), TrainConfig(seed=seed), seed, p.robot)
+    model.fit(p.X[subset], p.Y[subset])
+    rep = accuracy_report(model, p.X[p.test], p.Y[p.test])
+    return {"mean_mm": rep.mean_mm, "coverage_90": rep.coverage_90}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--data", default="/tmp/paper.parquet")
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--memories", default="200,500,1000,2000")
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    p = prepare(read_dataset(args.data), test_fraction=0.1, seed=0)
+    train = np.sort(p.train)  # recording order
+    runs = [("max_error", int(m)) for m in args.memories.split(",")]
+    runs += [("reservoir", 500), ("full", len(train)), ("batch on random", 500)]
+    rows = []
+    for strategy, memory in runs:
+        results = [
+            batch_subset(p, memory, seed)
+            if strategy == "batch on random"
+            else continual(p, train, strategy, memory, seed)
+            for seed in range(args.seeds)
+        ]
+        means = [r["mean_mm"] for r in results]
+        row = {
+            "strategy": strategy,
+            "memory": memory,
+            "mean_mm": float(np.mean(means)),
+            "per_seed_mm": [round(m, 4) for m in means],
+            "coverage_90": float(np.mean([r["coverage_90"] for r in results])),
+        }
+        if "wall_s" in results[0]:
+            row["wall_s"] = float(np.mean([r["wall_s"] for r in results]))
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+
+
+if __name__ == "__main__":
+    main()
