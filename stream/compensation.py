@@ -33,7 +33,7 @@ class CompensationConfig:
 
     epistemic_limit_mm: float = 0.5
     level: float = 0.9
-    max_iterations: int = 20
+    max_iterations: int = 50
     tolerance_m: float = 1e-7
     damping: float = 1e-6
     max_step_rad: float = 0.01
