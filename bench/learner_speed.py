@@ -1,5 +1,6 @@
-"""Learner speed on this machine: single-pose and 1,000-pose prediction latency, the batched
-ensemble against six separate ``nn.Sequential`` models (train step and inference), and one
+"""Learner speed on this machine: single-pose and 1,000-pose prediction latency, the ensemble
+module (``module_*``: batched heads, head by head when evaluating 256+ rows) against one
+``nn.Sequential`` per head (train step and inference), and one
 continual pass over the paper campaign's 2,704 training points (N_m=500, n_B=100).
 
     .venv/bin/python bench/learner_speed.py [--data /tmp/paper.parquet]
@@ -91,7 +92,7 @@ def main() -> None:
     xb = torch.randn(64, width)
     yb = torch.randn(64, 6 * cfg.members)
     for name, params, fwd in (
-        ("batched", net.parameters(), net),
+        ("module", net.parameters(), net),
         ("separate", seq.parameters(), lambda x: separate_forward(seq, x)),
     ):
         opt = torch.optim.Adam(list(params), lr=1e-3, foreach=True)
@@ -110,7 +111,7 @@ def main() -> None:
             x1 = xin[:1]
             out[f"{name}_infer_1_ms"] = 1e3 * np.median(timed(lambda fwd=fwd, x=x1: fwd(x), 2000))
     for key in ("train_step_bs64_ms", "infer_1000_ms", "infer_1_ms"):
-        out[f"speedup_{key}"] = out[f"separate_{key}"] / out[f"batched_{key}"]
+        out[f"speedup_{key}"] = out[f"separate_{key}"] / out[f"module_{key}"]
     if os.path.exists(args.data):
         out["continual_pass_2704_s"] = continual_pass(args.data)
     out["load_average_1min_at_end"] = os.getloadavg()[0]
