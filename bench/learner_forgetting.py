@@ -34,11 +34,9 @@ def main() -> None:
     for strategy in ("max_error", "naive"):
         model = ErrorModel.create(p.spec, ModelConfig(), TrainConfig(), 0, p.robot)
         learner = ContinualLearner(model, ContinualConfig(memory=500, batch=100, strategy=strategy))
-        learner.initialize(p.X[order[:50]], p.Y[order[:50]])
         after_one = None
-        for i in range(50, len(order), 100):
-            learner.update(p.X[order[i : i + 100]], p.Y[order[i : i + 100]])
-            if after_one is None and i + 100 >= n_one:
+        for m in learner.learn_stream(p.X[order], p.Y[order]):
+            if after_one is None and m.n_seen >= n_one:
                 after_one = accuracy_report(learner.model, p.X[test_one], p.Y[test_one]).mean_mm
         end = accuracy_report(learner.model, p.X[test_one], p.Y[test_one]).mean_mm
         out[strategy] = {

@@ -26,9 +26,8 @@ def continual(p, train, strategy: str, memory: int, seed: int) -> dict:
     cfg = ContinualConfig(memory=memory, batch=100, strategy=strategy, seed=seed)
     learner = ContinualLearner(model, cfg)
     start = time.perf_counter()
-    learner.update(p.X[train[:50]], p.Y[train[:50]])
-    for i in range(50, len(train), 100):
-        learner.update(p.X[train[i : i + 100]], p.Y[train[i : i + 100]])
+    for _ in learner.learn_stream(p.X[train], p.Y[train]):
+        pass
     rep = accuracy_report(learner.model, p.X[p.test], p.Y[p.test])
     return {
         "mean_mm": rep.mean_mm,

@@ -28,11 +28,9 @@ def continual(p, strategy, train, model_cfg):
     model = ErrorModel.create(p.spec, model_cfg, TrainConfig(), 0, p.robot)
     learner = ContinualLearner(model, ContinualConfig(memory=500, batch=100, strategy=strategy))
     start = time.perf_counter()
-    learner.initialize(p.X[train[:50]], p.Y[train[:50]])
     early = None
-    for i in range(50, len(train), 100):
-        learner.update(p.X[train[i : i + 100]], p.Y[train[i : i + 100]])
-        if early is None and i + 100 >= 550:  # the first 550 points seen
+    for m in learner.learn_stream(p.X[train], p.Y[train]):
+        if early is None and m.n_seen >= 550:  # the first 550 points seen
             early_model_err = accuracy_report(learner.model, p.X[train[:550]], p.Y[train[:550]])
             early = early_model_err.mean_mm
     wall = time.perf_counter() - start

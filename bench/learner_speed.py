@@ -60,9 +60,8 @@ def continual_pass(path: str) -> float:
     model = ErrorModel.create(p.spec, ModelConfig(), TrainConfig(), 0, p.robot)
     learner = ContinualLearner(model, ContinualConfig(memory=500, batch=100))
     start = time.perf_counter()
-    learner.initialize(p.X[train[:50]], p.Y[train[:50]])
-    for i in range(50, len(train), 100):
-        learner.update(p.X[train[i : i + 100]], p.Y[train[i : i + 100]])
+    for _ in learner.learn_stream(p.X[train], p.Y[train]):
+        pass
     return time.perf_counter() - start
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -94,6 +95,15 @@ class ContinualLearner:
         report = self.model.fit(X, Y, max_epochs=self.cfg.init_epochs)
         self.version += 1
         return self._metrics(len(X), len(self._mem_x), report, time.perf_counter() - start)
+
+    def learn_stream(self, X: np.ndarray, Y: np.ndarray) -> Iterator[UpdateMetrics]:
+        """Learn ``X, Y`` in their order, as a line delivers them: the first model from the
+        first ``init`` points, then one :meth:`update` per ``batch`` points; yields each step's
+        metrics."""
+        init, batch = self.cfg.init, self.cfg.batch
+        yield self.initialize(X[:init], Y[:init])
+        for i in range(init, len(X), batch):
+            yield self.update(X[i : i + batch], Y[i : i + batch])
 
     def update(self, X_new: np.ndarray, Y_new: np.ndarray) -> UpdateMetrics:
         """Learn one batch: hold out a share for calibration, select the memory from memory ∪

@@ -168,9 +168,8 @@ def _continual_row(p, train, Y0, cfg, train_cfg, n_b, n_m) -> dict:
     )
     learner = ContinualLearner(model, ccfg)
     start = time.perf_counter()
-    learner.initialize(p.X[train[: ccfg.init]], p.Y[train[: ccfg.init]])
-    for i in range(ccfg.init, len(train), n_b):
-        learner.update(p.X[train[i : i + n_b]], p.Y[train[i : i + n_b]])
+    for _ in learner.learn_stream(p.X[train], p.Y[train]):
+        pass
     rep = accuracy_report(learner.model, p.X[p.test], p.Y[p.test], Y0)
     return {
         "section": "continual",

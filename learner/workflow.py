@@ -136,12 +136,7 @@ def continual_on_dataset(
     Xtr, Ytr = p.X[train], p.Y[train]
     Xte, Yte = p.X[p.test], p.Y[p.test]
     updates, curve = [], []
-    steps = [(0, cfg.init)] + [(i, i + cfg.batch) for i in range(cfg.init, len(train), cfg.batch)]
-    for start, stop in steps:
-        if start == 0:
-            m = learner.initialize(Xtr[:stop], Ytr[:stop])
-        else:
-            m = learner.update(Xtr[start:stop], Ytr[start:stop])
+    for m in learner.learn_stream(Xtr, Ytr):
         updates.append(m)
         row = {**m.to_dict()}
         if len(Xte):

@@ -43,9 +43,11 @@ def _learner(strategy, memory=100, batch=25, epochs=30, seed=0, holdout=0.0):
     return ContinualLearner(model, cfg)
 
 
-def _stream(learner, X, Y, batch=25):
-    learner.initialize(X[:batch], Y[:batch])
-    return [learner.update(X[i : i + batch], Y[i : i + batch]) for i in range(batch, len(X), batch)]
+def _stream(learner, X, Y):
+    """The first model from ``init`` (25) points, then one update per batch of 25."""
+    steps = list(learner.learn_stream(X, Y))
+    assert [m.n_seen for m in steps] == list(range(25, len(X) + 1, 25))
+    return steps
 
 
 @pytest.fixture(scope="module")
