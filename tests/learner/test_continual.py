@@ -160,10 +160,10 @@ def test_bad_batches_and_states_raise():
 
 def _holdout_mse(learner):
     """The validation score of ``ErrorModel.fit``: MSE of the scaled means on the held-out set."""
-    held = learner.state_dict()
+    state = learner.state_dict()
     model = learner.model
-    gamma = model.predict_scaled(model.scale_x(held["holdout_x"]))[0]
-    return float(((gamma - model.scale_y(held["holdout_y"])) ** 2).mean())
+    gamma = model.predict_scaled(model.scale_x(state["holdout_x"]))[0]
+    return float(((gamma - model.scale_y(state["holdout_y"])) ** 2).mean())
 
 
 def test_an_update_keeps_the_weights_best_on_the_held_out_set(two_regions):
