@@ -113,7 +113,9 @@ class ContinualConfig:
     each batch (fine-tuning, below the first fit's rate: a fresh Adam at the full rate moves
     every weight and forgets what the memory no longer holds), and the ``holdout`` share of
     each batch kept out of training in a first-in-first-out set of ``calibration_size`` points
-    that picks the epoch each update keeps and on which the intervals are calibrated."""
+    that picks the epoch each update keeps and on which the intervals are calibrated. The
+    published model is an exponential moving average of the trained weights over updates;
+    ``average`` is the latest update's share (1 publishes the trained weights as they are)."""
 
     memory: int = 500
     batch: int = 100
@@ -124,6 +126,7 @@ class ContinualConfig:
     update_lr: float = 1e-3
     holdout: float = 0.1
     calibration_size: int = 200
+    average: float = 0.3
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -144,5 +147,8 @@ class ContinualConfig:
         )
         _check(
             0.0 <= self.holdout < 1.0, f"continual.holdout must be in [0, 1), got {self.holdout}"
+        )
+        _check(
+            0.0 < self.average <= 1.0, f"continual.average must be in (0, 1], got {self.average}"
         )
         _check(isinstance(self.seed, int), f"continual.seed must be an int, got {self.seed!r}")

@@ -22,7 +22,7 @@ def _region(rng, n, lo, hi):
     return X, _target(X)
 
 
-def _learner(strategy, memory=100, batch=25, epochs=30, seed=0, holdout=0.0):
+def _learner(strategy, memory=100, batch=25, epochs=30, seed=0, holdout=0.0, average=0.3):
     model = ErrorModel.create(
         SPEC,
         ModelConfig(hidden_layers=2, neurons=24, encoding="minmax"),
@@ -39,6 +39,7 @@ def _learner(strategy, memory=100, batch=25, epochs=30, seed=0, holdout=0.0):
         update_lr=3e-3,  # this toy learns each region in few, short updates
         holdout=holdout,
         calibration_size=20,
+        average=average,
     )
     return ContinualLearner(model, cfg)
 
@@ -60,10 +61,12 @@ def two_regions():
 
 
 def test_max_error_keeps_region_one_while_naive_forgets(two_regions):
+    # The replay alone: averaging the weights over updates (tested below) would hide part of
+    # what naive fine-tuning forgets in four updates.
     X, Y, Xt, Yt = two_regions
     errors = {}
     for strategy in ("max_error", "naive"):
-        learner = _learner(strategy)
+        learner = _learner(strategy, average=1.0)
         _stream(learner, X[:100], Y[:100])
         before = np.abs(learner.model.predict(Xt).gamma - Yt).mean()
         for i in range(100, 200, 25):
@@ -126,6 +129,45 @@ def test_state_roundtrip_continues_identically(two_regions):
     ma, mb = a.update(X[75:100], Y[75:100]), b.update(X[75:100], Y[75:100])
     np.testing.assert_array_equal(a.memory.x, b.memory.x)
     assert ma.memory_size == mb.memory_size
+    for model in ("model", "trained"):
+        np.testing.assert_array_equal(
+            getattr(b, model).predict(X[:5]).gamma, getattr(a, model).predict(X[:5]).gamma
+        )
+
+
+def test_a_state_without_trained_weights_trains_the_published_ones(two_regions):
+    X, Y, _, _ = two_regions
+    a = _learner("max_error", memory=30, epochs=2)
+    _stream(a, X[:50], Y[:50])
+    state = a.state_dict()
+    del state["trained"]
+    b = _learner("max_error", memory=30, epochs=2)
+    b.load_state(state)
+    np.testing.assert_array_equal(b.trained.predict(X[:5]).gamma, a.model.predict(X[:5]).gamma)
+
+
+def _weights(model):
+    return [t.clone() for t in model.net.state_dict().values()]
+
+
+@pytest.mark.parametrize("average", [0.3, 1.0])
+def test_the_published_model_averages_the_trained_weights(two_regions, average):
+    X, Y, _, _ = two_regions
+    learner = _learner("max_error", epochs=5, holdout=0.2, average=average)
+    _stream(learner, X[:75], Y[:75])
+    before = _weights(learner.model)
+    learner.update(X[75:100], Y[75:100])
+    trained, after = _weights(learner.trained), _weights(learner.model)
+    assert any(not np.allclose(b, t) for b, t in zip(before, trained, strict=True))
+    for b, t, a in zip(before, trained, after, strict=True):
+        np.testing.assert_allclose(a, b + average * (t - b), rtol=1e-6, atol=1e-7)
+    held_x, held_y = learner.state_dict()["holdout_x"], learner.state_dict()["holdout_y"]
+    scale = learner.model.interval_scale.copy()
+    np.testing.assert_allclose(learner.model.calibrate(held_x, held_y), scale)
+    if average == 1.0:
+        np.testing.assert_array_equal(
+            learner.model.predict(X).gamma, learner.trained.predict(X).gamma
+        )
 
 
 def test_held_out_points_calibrate_and_are_never_trained(two_regions):
@@ -161,7 +203,7 @@ def test_bad_batches_and_states_raise():
 def _holdout_mse(learner):
     """The validation score of ``ErrorModel.fit``: MSE of the scaled means on the held-out set."""
     state = learner.state_dict()
-    model = learner.model
+    model = learner.trained
     gamma = model.predict_scaled(model.scale_x(state["holdout_x"]))[0]
     return float(((gamma - model.scale_y(state["holdout_y"])) ** 2).mean())
 
