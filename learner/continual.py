@@ -14,7 +14,7 @@ arrived, updates only collect points; then the first model is trained on them.
 
 The model the learner publishes (:attr:`ContinualLearner.model`) is not the trained one
 (:attr:`ContinualLearner.trained`) but an exponential moving average of its weights over
-updates, the latest update's share ``average``. Each update fits its weights to a 500-point
+updates, the latest update's share ``average``. Each update fits its weights to the
 memory and its noise; the average keeps what the earlier memories taught. On the paper campaign
 it cut the continual model's test error from 0.054 to 0.050 mm (three seeds, BENCHMARKS.md).
 Ranking and training use the trained weights.
