@@ -161,7 +161,8 @@ def test_the_published_model_averages_the_trained_weights(two_regions, average):
     assert any(not np.allclose(b, t) for b, t in zip(before, trained, strict=True))
     for b, t, a in zip(before, trained, after, strict=True):
         np.testing.assert_allclose(a, b + average * (t - b), rtol=1e-6, atol=1e-7)
-    held_x, held_y = learner.state_dict()["holdout_x"], learner.state_dict()["holdout_y"]
+    state = learner.state_dict()
+    held_x, held_y = state["holdout_x"], state["holdout_y"]
     scale = learner.model.interval_scale.copy()
     np.testing.assert_allclose(learner.model.calibrate(held_x, held_y), scale)
     if average == 1.0:
