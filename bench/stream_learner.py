@@ -1,5 +1,6 @@
 """Learner stage update time per batch (features + labels + ContinualLearner.update + metrics
-+ snapshot), for the demo config and the paper's reference setting (N_m=500, n_B=100).
++ snapshot), for the demo config, the paper's reference setting (N_m=500, n_B=100) and the
+production example (deploy/robocal.example.toml, N_m=2000; the memory fills from 2,000 points on).
 
     .venv/bin/python bench/stream_learner.py [--n 900]
 """
@@ -9,6 +10,7 @@ from __future__ import annotations
 import argparse
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -17,10 +19,13 @@ from kinematics.description import load_description
 from learner.config import ContinualConfig
 from sim_sources.cell import simulate
 from sim_sources.scenarios import get_scenario
+from stream.config import load_config
 from stream.demo import DEMO_LEARNER
 from stream.learner_core import LearnerCore
 from stream.messages import Batch
 from stream.points import dataset_to_points
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "deploy" / "robocal.example.toml"
 
 
 def main() -> None:
@@ -37,9 +42,11 @@ def main() -> None:
         DEMO_LEARNER,
         continual=ContinualConfig(memory=500, batch=100, init=50, epochs_per_update=60),
     )
+    production = load_config(EXAMPLE).learner
     for label, cfg in (
         ("demo (N_m=300, 40 epochs)", DEMO_LEARNER),
         ("paper (N_m=500, 60 epochs)", reference),
+        ("production example (N_m=2000)", production),
     ):
         core = LearnerCore(load_description(ds.meta.robot), cfg, np.asarray(ds.meta.T_W_0))
         times, last = [], None
@@ -51,7 +58,7 @@ def main() -> None:
                 last = update.metrics
         t = np.array(times)
         print(
-            f"{label:28s}: {len(t)} updates after the first model, per batch mean "
+            f"{label:30s}: {len(t)} updates after the first model, per batch mean "
             f"{t.mean():.2f} s, min {t.min():.2f} s, max {t.max():.2f} s; final memory "
             f"{last.memory_size}, held-out mean error {last.test_mean_mm:.3f} mm"
         )

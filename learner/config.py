@@ -115,7 +115,9 @@ class ContinualConfig:
     each batch kept out of training in a first-in-first-out set of ``calibration_size`` points
     that picks the epoch each update keeps and on which the intervals are calibrated. The
     published model is an exponential moving average of the trained weights over updates;
-    ``average`` is the latest update's share (1 publishes the trained weights as they are)."""
+    ``average`` is the latest update's share (1 publishes the trained weights as they are).
+    ``memory`` 500 is the published setting; on the paper campaign 2,000 matches batch
+    training at about twice the update time (BENCHMARKS.md)."""
 
     memory: int = 500
     batch: int = 100

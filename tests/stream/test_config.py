@@ -5,6 +5,7 @@ from pathlib import Path
 import pytest
 
 from kinematics.errors import ConfigError
+from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from stream.config import load_config
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "deploy" / "robocal.example.toml"
@@ -14,6 +15,15 @@ def test_example_config_loads():
     cfg = load_config(EXAMPLE)
     assert cfg.robots and cfg.bus.mode in ("peer", "client")
     assert cfg.learner.continual.memory >= cfg.learner.continual.batch
+
+
+def test_example_learner_is_the_benchmarked_one():
+    """BENCHMARKS.md measures the library defaults; the example differs only in a memory large
+    enough to match batch training."""
+    learner = load_config(EXAMPLE).learner
+    assert learner.model == ModelConfig()
+    assert learner.train == TrainConfig()
+    assert learner.continual == ContinualConfig(memory=2000)
 
 
 @pytest.mark.parametrize(
