@@ -136,7 +136,8 @@ class ErrorModel:
     def predict_scaled(self, Xs: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """NIG outputs ``(N, 6)`` in scaled label units for scaled features, the members
         combined (no grad, eval mode)."""
-        self.net.eval()
+        if self.net.training:  # eval() walks every submodule: a tenth of a one-pose call
+            self.net.eval()
         with torch.inference_mode():
             return combine_members(*self.net(Xs), self.model_cfg.members)
 
