@@ -1,6 +1,7 @@
 """Learner stage update time per batch (features + labels + ContinualLearner.update + metrics
-+ snapshot), for the demo config, the paper's reference setting (N_m=500, n_B=100) and the
-production example (deploy/robocal.example.toml, N_m=2000; the memory fills from 2,000 points on).
++ snapshot), for the paper's reference setting (N_m=500, n_B=100) and the demo's learner, which
+is the production example's (deploy/robocal.example.toml, N_m=2000; the memory fills from 2,000
+points on).
 
     .venv/bin/python bench/stream_learner.py [--n 900]
 """
@@ -10,7 +11,6 @@ from __future__ import annotations
 import argparse
 import time
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -19,13 +19,10 @@ from kinematics.description import load_description
 from learner.config import ContinualConfig
 from sim_sources.cell import simulate
 from sim_sources.scenarios import get_scenario
-from stream.config import load_config
 from stream.demo import DEMO_LEARNER
 from stream.learner_core import LearnerCore
 from stream.messages import Batch
 from stream.points import dataset_to_points
-
-EXAMPLE = Path(__file__).resolve().parents[1] / "deploy" / "robocal.example.toml"
 
 
 def main() -> None:
@@ -38,15 +35,10 @@ def main() -> None:
     batches = [
         Batch(seq=i, points=tuple(points[i * 100 : i * 100 + 100])) for i in range(args.n // 100)
     ]
-    reference = replace(
-        DEMO_LEARNER,
-        continual=ContinualConfig(memory=500, batch=100, init=50, epochs_per_update=60),
-    )
-    production = load_config(EXAMPLE).learner
+    reference = replace(DEMO_LEARNER, continual=ContinualConfig(memory=500))
     for label, cfg in (
-        ("demo (N_m=300, 40 epochs)", DEMO_LEARNER),
-        ("paper (N_m=500, 60 epochs)", reference),
-        ("production example (N_m=2000)", production),
+        ("paper (N_m=500)", reference),
+        ("demo = production (N_m=2000)", DEMO_LEARNER),
     ):
         core = LearnerCore(load_description(ds.meta.robot), cfg, np.asarray(ds.meta.T_W_0))
         times, last = [], None

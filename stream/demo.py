@@ -25,7 +25,7 @@ from kinematics.dataset import Dataset
 from kinematics.errors import ConfigError
 from kinematics.model import RobotModel
 from kinematics.transforms import pose_error
-from learner.config import ContinualConfig, ModelConfig, TrainConfig
+from learner.config import ContinualConfig
 from learner.metrics import accuracy_report
 from learner.snapshot import snapshot_from_bytes
 from sim_sources.cell import SimulatedCell, simulate
@@ -41,14 +41,9 @@ from stream.messages import decode, decode_model, encode, key
 from stream.sources import SimCellSource
 from stream.window import WindowConfig
 
-DEMO_LEARNER = LearnerStageConfig(
-    model=ModelConfig(hidden_layers=2, neurons=64),
-    train=TrainConfig(batch_size=32, lr=3e-3),
-    continual=ContinualConfig(
-        memory=300, batch=100, init=100, epochs_per_update=30, init_epochs=200
-    ),
-    holdout_every=10,
-)
+# The production example's learner (deploy/robocal.example.toml): the library defaults with a
+# memory large enough for the continual model to match batch training.
+DEMO_LEARNER = LearnerStageConfig(continual=ContinualConfig(memory=2000))
 
 
 @dataclass(frozen=True, kw_only=True)

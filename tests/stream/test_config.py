@@ -7,6 +7,7 @@ import pytest
 from kinematics.errors import ConfigError
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from stream.config import load_config
+from stream.demo import DEMO_LEARNER
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "deploy" / "robocal.example.toml"
 
@@ -24,6 +25,7 @@ def test_example_learner_is_the_benchmarked_one():
     assert learner.model == ModelConfig()
     assert learner.train == TrainConfig()
     assert learner.continual == ContinualConfig(memory=2000)
+    assert learner == DEMO_LEARNER  # the main job runs what a line runs
 
 
 @pytest.mark.parametrize(
