@@ -44,6 +44,7 @@ from stream.window import WindowConfig
 # The production example's learner (deploy/robocal.example.toml): the library defaults with a
 # memory large enough for the continual model to match batch training.
 DEMO_LEARNER = LearnerStageConfig(continual=ContinualConfig(memory=2000))
+REACHED_M = 1e-6  # a corrected command whose solver residual is below this reaches its target
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -88,11 +89,13 @@ def compensation_check(
     session: zenoh.Session, cell: str, ds: Dataset, seed: int, rows: np.ndarray
 ) -> dict:
     """Ask the compensation service for the corrected commands of held-out poses ``rows`` and
-    score them on the simulator's true robot: position error (mm) before and after."""
+    score them on the simulator's true robot: position error (mm) before and after, and after
+    for the commands whose solver reached the target (within ``REACHED_M``); near a singular
+    pose the rest keep the residual the service reports."""
     sim = SimulatedCell(get_scenario("paper"), len(ds), seed)
     cond = sim.conditions(rows)
     target = RobotModel(sim.model.description).fk(cond.q)
-    q_corrected, trusted = [], 0
+    q_corrected, residual, trusted = [], [], 0
     for i in rows:
         temps = {c[5:]: float(ds.table[c].iloc[i]) for c in ds.table if c.startswith("temp_")}
         req = CompensationRequest(
@@ -103,13 +106,19 @@ def compensation_check(
         )
         reply = decode(replies[0].ok.payload.to_bytes(), CompensationReply)
         q_corrected.append(reply.q_corrected)
+        residual.append(reply.residual_m)
         trusted += reply.trusted
-    before = pose_error(sim.truth.poses(cond), target)[:, :3]
-    after = pose_error(sim.truth.poses(replace(cond, q=np.array(q_corrected))), target)[:, :3]
+    before = np.linalg.norm(pose_error(sim.truth.poses(cond), target)[:, :3], axis=1)
+    cond_after = replace(cond, q=np.array(q_corrected))
+    after = np.linalg.norm(pose_error(sim.truth.poses(cond_after), target)[:, :3], axis=1)
+    reached = np.array(residual) < REACHED_M
     return {
         "n": len(rows),
-        "before_mean_mm": float(np.linalg.norm(before, axis=1).mean() * 1e3),
-        "after_mean_mm": float(np.linalg.norm(after, axis=1).mean() * 1e3),
+        "before_mean_mm": float(before.mean() * 1e3),
+        "after_mean_mm": float(after.mean() * 1e3),
+        "reached": int(reached.sum()),
+        "reached_after_mean_mm": float(after[reached].mean() * 1e3) if reached.any() else None,
+        "max_residual_mm": float(max(residual) * 1e3),
         "trusted_fraction": trusted / len(rows),
     }
 

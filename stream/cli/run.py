@@ -68,6 +68,8 @@ class DemoCommand(Command):
         with tqdm(total=args.n, unit="pt", file=sys.stderr, desc="demo") as bar:
             result = run_demo(args.out, args.n, args.seed, lambda k: bar.update(k - bar.n))
         learned, comp = result.learned, result.compensation
+        reached = comp["reached_after_mean_mm"]
+        reached_mm = "none" if reached is None else f"{reached:.3f} mm"
         text = (
             f"{result.n_points} points streamed ({result.samples_published} samples), "
             f"model v{result.model_version}, {result.n_test} held-out points:\n"
@@ -78,6 +80,8 @@ class DemoCommand(Command):
             f"{learned['coverage_90']:.2f}\n"
             f"  compensated   {comp['n']} held-out commands on the true robot: "
             f"{comp['before_mean_mm']:.3f} mm -> {comp['after_mean_mm']:.3f} mm mean error\n"
+            f"                {comp['reached']} of them reach the target ({reached_mm}); the "
+            f"largest solver residual left is {comp['max_residual_mm']:.3f} mm\n"
             f"  wrote {result.rrd} and {result.mcap} in {result.elapsed_s:.1f} s"
         )
         emit(asdict(result), args.json, text)

@@ -28,6 +28,7 @@ def test_short_demo_writes_rrd_and_mcap_and_learns(tmp_path):
     assert result.learned["mean_mm"] < result.uncalibrated_mean_mm
     comp = result.compensation
     assert comp["n"] == 12 and comp["after_mean_mm"] < comp["before_mean_mm"]
+    assert 1 <= comp["reached"] <= 12 and comp["reached_after_mean_mm"] <= comp["after_mean_mm"]
     series = read_scalars(result.rrd)
     versions, test_mean = series["/metrics/test_error/mean"]
     assert list(versions) == list(range(1, result.model_version + 1))
