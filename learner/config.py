@@ -20,6 +20,8 @@ from kinematics.errors import ConfigError
 ACTIVATIONS = ("elu", "relu", "gelu")
 STRATEGIES = ("max_error", "naive", "reservoir", "full")
 ENCODINGS = ("kinematic", "minmax")
+#: Physics bases the learner can identify itself (:mod:`learner.base`; a file is a path).
+BASE_KINDS = ("nominal", "geometric", "auto")
 
 
 def _check(cond: bool, msg: str) -> None:
@@ -117,7 +119,10 @@ class ContinualConfig:
     published model is an exponential moving average of the trained weights over updates;
     ``average`` is the latest update's share (1 publishes the trained weights as they are).
     ``memory`` 500 is the published setting; on the paper campaign 2,000 matches batch
-    training at about twice the update time (BENCHMARKS.md)."""
+    training at about twice the update time (BENCHMARKS.md). ``base`` is the physics base the
+    first model is identified on from the ``init`` points (:mod:`learner.base`; a model that
+    has one keeps it). ``aci_rate`` is the step of the adaptive conformal interval scale per
+    new point outside (or inside) the ``aci_level`` interval, in log units (0 turns it off)."""
 
     memory: int = 500
     batch: int = 100
@@ -129,6 +134,9 @@ class ContinualConfig:
     holdout: float = 0.1
     calibration_size: int = 200
     average: float = 0.3
+    base: str = "geometric"
+    aci_rate: float = 0.05
+    aci_level: float = 0.9
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -152,5 +160,17 @@ class ContinualConfig:
         )
         _check(
             0.0 < self.average <= 1.0, f"continual.average must be in (0, 1], got {self.average}"
+        )
+        _check(
+            self.base in BASE_KINDS,
+            f"continual.base must be one of {BASE_KINDS}, got {self.base!r}",
+        )
+        _check(
+            0.0 <= self.aci_rate <= 1.0,
+            f"continual.aci_rate must be in [0, 1], got {self.aci_rate}",
+        )
+        _check(
+            0.0 < self.aci_level < 1.0,
+            f"continual.aci_level must be in (0, 1), got {self.aci_level}",
         )
         _check(isinstance(self.seed, int), f"continual.seed must be an int, got {self.seed!r}")

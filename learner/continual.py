@@ -34,6 +34,8 @@ from safetensors.numpy import load as np_load
 from safetensors.numpy import save as np_save
 
 from kinematics.errors import DatasetError, SnapshotError
+from kinematics.model import RobotModel
+from learner.base import PhysicsBase, identify_base, nominal_base
 from learner.config import ContinualConfig
 from learner.model import MIN_CALIBRATION, ErrorModel, TrainReport
 from learner.replay import replay_strategy
@@ -82,6 +84,7 @@ class ContinualLearner:
         self.model = model
         self.trained = model  # a copy of its own from the first model on
         self.cfg = cfg
+        self.aci_log_scale = np.zeros(6)
         self.strategy = replay_strategy(cfg.strategy)
         self.rng = np.random.default_rng(cfg.seed)
         n_f = model.spec.n_features
@@ -91,6 +94,14 @@ class ContinualLearner:
         self._cal_y = np.empty((0, 6))
         self.n_seen = 0
         self.version = 0
+        if model.is_fitted:  # a trained model (a snapshot) goes on learning with an empty memory
+            self.trained = _copy(model)
+            self.version = 1
+
+    @property
+    def base(self) -> PhysicsBase:
+        """The physics base the learner's models stand on (the nominal until identified)."""
+        return self.trained.base or nominal_base(self.trained.spec.description)
 
     @property
     def memory(self) -> Memory:
@@ -102,17 +113,20 @@ class ContinualLearner:
         self._mem_x, self._mem_y = X[-self.cfg.memory :], Y[-self.cfg.memory :]
         self.n_seen = len(X)
         start = time.perf_counter()
+        if self.trained.base is None and self.trained.spec.description is not None:
+            self.trained.base = identify_base(self.cfg.base, self.trained.spec, X, Y)
         report = self.trained.fit(X, Y, max_epochs=self.cfg.init_epochs)
-        self.model = snapshot_from_bytes(snapshot_to_bytes(self.trained))
+        self.model = _copy(self.trained)
         self.version += 1
         return self._metrics(len(X), len(self._mem_x), report, time.perf_counter() - start)
 
     def learn_stream(self, X: np.ndarray, Y: np.ndarray) -> Iterator[UpdateMetrics]:
         """Learn ``X, Y`` in their order, as a line delivers them: the first model from the
-        first ``init`` points, then one :meth:`update` per ``batch`` points; yields each step's
-        metrics."""
-        init, batch = self.cfg.init, self.cfg.batch
-        yield self.initialize(X[:init], Y[:init])
+        first ``init`` points (unless it has one already), then one :meth:`update` per ``batch``
+        points; yields each step's metrics."""
+        init, batch = (0 if self.version else self.cfg.init), self.cfg.batch
+        if init:
+            yield self.initialize(X[:init], Y[:init])
         for i in range(init, len(X), batch):
             yield self.update(X[i : i + batch], Y[i : i + batch])
 
@@ -127,6 +141,7 @@ class ContinualLearner:
                 self._mem_x, self._mem_y, self.n_seen = pool_x, pool_y, len(pool_x)
                 return self._metrics(len(X_new), 0, None, 0.0)
             return self.initialize(pool_x, pool_y)
+        self._adapt_intervals(X_new, Y_new)
         n_in = len(X_new)
         held = np.zeros(n_in, dtype=bool)
         held[self.rng.permutation(n_in)[: int(self.cfg.holdout * n_in)]] = True
@@ -162,6 +177,37 @@ class ContinualLearner:
         dt = time.perf_counter() - start
         return self._metrics(len(X_new), new_kept, report, dt, batch_err)
 
+    def remember(self, X: np.ndarray, Y: np.ndarray) -> None:
+        """Fill the memory from points the model was trained on (a batch-trained model that goes
+        on learning): the ``memory`` worst predicted, as max-error replay keeps them."""
+        X, Y = self._check(X, Y)
+        errors = np.linalg.norm(
+            (self.trained.predict(X).gamma - Y) / self.trained.label_std, axis=1
+        )
+        keep = np.sort(np.argsort(errors)[::-1][: self.cfg.memory])
+        self._mem_x, self._mem_y = X[keep], Y[keep]
+        self.n_seen = len(X)
+
+    def rebase(self, base: PhysicsBase) -> None:
+        """Put both models on a new physics base (e.g. frames re-identified on a new day); the
+        memory's labels move with it so that each point keeps its residual."""
+        nominal = RobotModel(self.model.spec.description)
+        for x, y in ((self._mem_x, self._mem_y), (self._cal_x, self._cal_y)):
+            y += base.error(self.model.spec, x, nominal) - self.trained.base_error(x)
+        for model in (self.model, self.trained):
+            model.base = base
+
+    def _adapt_intervals(self, X: np.ndarray, Y: np.ndarray) -> None:
+        """Adaptive conformal inference (Gibbs & Candès 2021) on the interval scale: each new
+        point outside the published ``aci_level`` interval widens its component's intervals,
+        each inside narrows them, by ``aci_rate`` in log scale; on the stream the share outside
+        tends to ``1 - aci_level`` whatever the shift (a new day, an unseen region)."""
+        if self.cfg.aci_rate == 0 or not self.model.is_fitted:
+            return
+        lo, hi = self.model.predict(X).interval(self.cfg.aci_level)
+        miss = ((lo > Y) | (hi < Y)).sum(axis=0) - (1.0 - self.cfg.aci_level) * len(Y)
+        self.aci_log_scale = np.clip(self.aci_log_scale + self.cfg.aci_rate * miss, -3.0, 3.0)
+
     def _publish(self) -> None:
         """Move the published weights towards the trained ones by ``average``; calibrate the
         result on the held-out set (or take the trained model's scale while it is too small)."""
@@ -176,6 +222,7 @@ class ContinualLearner:
             self.model.calibrate(self._cal_x, self._cal_y)
         else:
             self.model.interval_scale = self.trained.interval_scale.copy()
+        self.model.interval_scale = self.model.interval_scale * np.exp(self.aci_log_scale)
 
     def _metrics(
         self,
@@ -226,6 +273,7 @@ class ContinualLearner:
             "memory_y": self._mem_y.copy(),
             "holdout_x": self._cal_x.copy(),
             "holdout_y": self._cal_y.copy(),
+            "aci_log_scale": self.aci_log_scale.copy(),
             "n_seen": self.n_seen,
             "version": self.version,
             "rng": self.rng.bit_generator.state,
@@ -244,6 +292,7 @@ class ContinualLearner:
             # States written before the calibration set existed restart with an empty one.
             cal_x = np.asarray(state.get("holdout_x", mem_x[:0]), dtype=float)
             cal_y = np.asarray(state.get("holdout_y", mem_y[:0]), dtype=float)
+            aci = np.asarray(state.get("aci_log_scale", np.zeros(6)), dtype=float)
             n_seen, version = int(state["n_seen"]), int(state["version"])
             rng_state = state["rng"]
         except (KeyError, TypeError, ValueError) as exc:
@@ -256,8 +305,14 @@ class ContinualLearner:
         self.model, self.trained = model, trained
         self._mem_x, self._mem_y = mem_x, mem_y
         self._cal_x, self._cal_y = cal_x, cal_y
+        self.aci_log_scale = aci
         self.n_seen, self.version = n_seen, version
         self.rng.bit_generator.state = rng_state
+
+
+def _copy(model: ErrorModel) -> ErrorModel:
+    """An independent copy of ``model`` (through its snapshot: weights, scalers, base)."""
+    return snapshot_from_bytes(snapshot_to_bytes(model))
 
 
 def state_to_bytes(state: dict) -> bytes:
@@ -271,8 +326,8 @@ def state_to_bytes(state: dict) -> bytes:
         "model": state["model"].hex(),
         "trained": state["trained"].hex(),
     }
-    keys = ("memory_x", "memory_y", "holdout_x", "holdout_y")
-    arrays = {k: np.ascontiguousarray(state[k]) for k in keys}
+    keys = ("memory_x", "memory_y", "holdout_x", "holdout_y", "aci_log_scale")
+    arrays = {k: np.ascontiguousarray(state[k]) for k in keys if k in state}
     return np_save(arrays, metadata={"robocal": json.dumps(meta)})
 
 

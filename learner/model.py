@@ -1,8 +1,11 @@
 """``ErrorModel``: the pose-error estimator (network, fixed scalers, configs, feature names).
 
-Inputs are encoded from the raw features by :mod:`learner.encoding` on scales fixed by the
-robot description (:class:`~learner.features.FeatureSpec`); labels are standardised per
-component by a mean and std fixed on the model's first ``fit`` and never changed afterwards.
+The model is a physics base plus a learned residual (:mod:`learner.base`): its prediction is
+the base's pose error against the nominal model plus what the network predicts of the rest, so
+labels stay DESIGN.md's (the error against the nominal) whatever the base. Inputs are encoded
+from the raw features by :mod:`learner.encoding` on scales fixed by the robot description
+(:class:`~learner.features.FeatureSpec`); the residual labels are standardised per component
+by a mean and std fixed on the model's first ``fit`` and never changed afterwards.
 Validation MSE is in these scaled label units (1.0 = the spread of the first training labels).
 
 >>> from kinematics.description import load_description
@@ -24,6 +27,8 @@ import torch
 from scipy import optimize, stats
 
 from kinematics.errors import DatasetError
+from kinematics.model import RobotModel
+from learner.base import PhysicsBase
 from learner.config import ModelConfig, TrainConfig
 from learner.encoding import input_encoder, n_inputs
 from learner.ensemble import EvidentialEnsemble
@@ -65,8 +70,10 @@ class ErrorModel:
         label_mean: np.ndarray | None = None,
         label_std: np.ndarray | None = None,
         interval_scale: np.ndarray | None = None,
+        base: PhysicsBase | None = None,
     ) -> None:
         self.spec = spec
+        self.base = base
         self.model_cfg = model_cfg
         self.train_cfg = train_cfg
         self.seed = seed
@@ -86,6 +93,7 @@ class ErrorModel:
             seed=seed,
         )
         self._encode = input_encoder(spec, model_cfg.encoding)
+        self._nominal: RobotModel | None = None
         self.skipped_steps = 0
         self.metrics: dict[str, float] = {}
 
@@ -97,9 +105,12 @@ class ErrorModel:
         train_cfg: TrainConfig,
         seed: int,
         robot: str = "",
+        base: PhysicsBase | None = None,
     ) -> ErrorModel:
-        """A fresh, untrained model (weights drawn from ``seed``)."""
-        return cls(spec=spec, model_cfg=model_cfg, train_cfg=train_cfg, seed=seed, robot=robot)
+        """A fresh, untrained model (weights drawn from ``seed``) on ``base`` (none: nominal)."""
+        return cls(
+            spec=spec, model_cfg=model_cfg, train_cfg=train_cfg, seed=seed, robot=robot, base=base
+        )
 
     @property
     def feature_names(self) -> tuple[str, ...]:
@@ -113,6 +124,18 @@ class ErrorModel:
     def is_fitted(self) -> bool:
         return self.label_mean is not None
 
+    @property
+    def base_kind(self) -> str:
+        return "nominal" if self.base is None else self.base.kind
+
+    def base_error(self, X: np.ndarray) -> np.ndarray:
+        """What the physics base predicts of the pose error ``(N, 6)`` (m, rad) at ``X``."""
+        if self.base is None or self.base.kind == "nominal":
+            return np.zeros((np.shape(X)[0], N_LABELS))
+        if self._nominal is None:
+            self._nominal = RobotModel(self.spec.description)
+        return self.base.error(self.spec, X, self._nominal)
+
     # -- scaling -------------------------------------------------------------------------------
 
     def scale_x(self, X: np.ndarray) -> torch.Tensor:
@@ -120,7 +143,7 @@ class ErrorModel:
         return torch.as_tensor(self._encode(X), dtype=torch.float32)
 
     def scale_y(self, Y: np.ndarray) -> torch.Tensor:
-        """Labels (m, rad) -> standardised float32 tensor."""
+        """Residual labels (m, rad; the label less :meth:`base_error`) -> standardised float32."""
         Y = _check_labels(Y)
         return torch.as_tensor((Y - self.label_mean) / self.label_std, dtype=torch.float32)
 
@@ -147,7 +170,8 @@ class ErrorModel:
         mean = np.zeros(N_LABELS) if self.label_mean is None else self.label_mean
         std = np.ones(N_LABELS) if self.label_std is None else self.label_std
         beta = beta * (std * self.interval_scale) ** 2
-        return Evidential(gamma=mean + std * gamma, nu=nu, alpha=alpha, beta=beta)
+        gamma = mean + std * gamma + self.base_error(X)
+        return Evidential(gamma=gamma, nu=nu, alpha=alpha, beta=beta)
 
     def calibrate(self, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
         """Fit the per-component factor on the Student-t scale that minimises the predictive
@@ -212,9 +236,12 @@ class ErrorModel:
                 X[order[:n_val]],
                 Y[order[:n_val]],
             )
-        self._ensure_label_scaler(Y)
-        Xs, Ys = self.scale_x(X), self.scale_y(Y)
-        val = None if X_val is None else (self.scale_x(X_val), self.scale_y(Y_val))
+        R = Y - self.base_error(X)  # the network learns what the base leaves
+        self._ensure_label_scaler(R)
+        Xs, Ys = self.scale_x(X), self.scale_y(R)
+        val = None
+        if X_val is not None:
+            val = (self.scale_x(X_val), self.scale_y(_check_labels(Y_val) - self.base_error(X_val)))
         epochs = max_epochs or cfg.max_epochs
         report = _train_loop(self, Xs, Ys, val, gen, epochs, lr or cfg.lr, on_epoch)
         if X_val is not None and len(X_val) >= MIN_CALIBRATION:

@@ -8,7 +8,9 @@ Version 1 snapshots (before input encodings and members existed) load as ``encod
 "minmax"``, one member.
 
 >>> from kinematics.description import load_description
->>> from learner.config import ModelConfig, TrainConfig
+>>> from kinematics.gap.model_file import EffectEntry
+from learner.base import PhysicsBase
+from learner.config import ModelConfig, TrainConfig
 >>> from learner.features import feature_spec
 >>> spec = feature_spec(load_description("ur10"), 0, False)
 >>> m = ErrorModel.create(spec, ModelConfig(hidden_layers=1, neurons=8), TrainConfig(), seed=0)
@@ -33,6 +35,8 @@ from safetensors.torch import save as st_save
 
 from kinematics.description import description_from_dict, description_to_toml
 from kinematics.errors import RobocalError, SnapshotError
+from kinematics.gap.model_file import EffectEntry
+from learner.base import PhysicsBase
 from learner.config import ModelConfig, TrainConfig
 from learner.features import FeatureSpec
 from learner.model import ErrorModel
@@ -59,6 +63,10 @@ def snapshot_to_bytes(model: ErrorModel, extra_meta: dict | None = None) -> byte
     desc = model.spec.description
     if desc is not None:
         tensors["sensor_tool"] = torch.as_tensor(desc.tool)
+    base = model.base
+    if base is not None:
+        tensors["base_T_0_B"] = torch.as_tensor(np.asarray(base.T_0_B, dtype=np.float64))
+        tensors["base_tool"] = torch.as_tensor(base.description.tool)
     meta = {
         "schema": SCHEMA,
         "version": SCHEMA_VERSION,
@@ -70,6 +78,7 @@ def snapshot_to_bytes(model: ErrorModel, extra_meta: dict | None = None) -> byte
         "seed": model.seed,
         "fitted": model.is_fitted,
         "metrics": model.metrics,
+        "base": None if base is None else _base_meta(base),
         "extra": extra_meta or {},
     }
     try:
@@ -126,6 +135,7 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
             label_mean=tensors["label_mean"].numpy() if meta["fitted"] else None,
             label_std=tensors["label_std"].numpy() if meta["fitted"] else None,
             interval_scale=tensors["interval_scale"].numpy(),
+            base=_base_from_meta(meta.get("base"), tensors),
         )
         state = {k[len("net.") :]: v for k, v in tensors.items() if k.startswith("net.")}
         model.net.load_state_dict(state, strict=True)
@@ -138,11 +148,39 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
     return model
 
 
+def _base_meta(base: PhysicsBase) -> dict:
+    """The physics base's JSON part (its frame and tool travel as float64 tensors)."""
+    return {
+        "kind": base.kind,
+        "note": base.note,
+        "description": description_to_toml(base.description),
+        "effects": [asdict(e) for e in base.effects],
+    }
+
+
+def _base_from_meta(meta: dict | None, tensors: dict) -> PhysicsBase | None:
+    """The physics base a snapshot records (None before bases existed: the nominal)."""
+    if not meta:
+        return None
+    desc = description_from_dict(tomllib.loads(meta["description"]))
+    return PhysicsBase(
+        kind=str(meta["kind"]),
+        description=desc.with_tool(tensors["base_tool"].numpy()),
+        T_0_B=tensors["base_T_0_B"].numpy(),
+        effects=tuple(EffectEntry(**e) for e in meta.get("effects", [])),
+        note=str(meta.get("note", "")),
+    )
+
+
 def save_snapshot(model: ErrorModel, path: str | Path, extra_meta: dict | None = None) -> Path:
     """Write the snapshot to ``path`` atomically (temporary file, then rename)."""
+    return atomic_write_bytes(path, snapshot_to_bytes(model, extra_meta))
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (temporary file in the folder, then rename)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    data = snapshot_to_bytes(model, extra_meta)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as fh:

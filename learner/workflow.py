@@ -1,14 +1,15 @@
 """Dataset-level workflows behind the CLI: batch training, continual streaming, evaluation.
 
 Each takes a :class:`~kinematics.dataset.Dataset`, builds features and labels against the
-nominal model (with the dataset's ``T_6_S`` when known), splits off a seeded test set and
-returns a typed result; files are written only where a path is given.
+nominal model (with the dataset's ``T_6_S`` when known, or the model's own nominal), splits off
+a seeded test set, identifies the physics base on the training points only (:mod:`learner.base`)
+and returns a typed result; files are written only where a path is given.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -17,13 +18,20 @@ from kinematics.dataset import Dataset
 from kinematics.description import RobotDescription, load_description
 from kinematics.errors import ConfigError, DatasetError
 from kinematics.model import RobotModel
+from learner.base import (
+    DEFAULT_BASE,
+    check_same_robot,
+    data_frame,
+    make_base,
+    reidentify_frames,
+)
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
-from learner.continual import ContinualLearner, UpdateMetrics
+from learner.continual import ContinualLearner, UpdateMetrics, state_from_bytes, state_to_bytes
 from learner.features import FeatureSpec, dataset_feature_spec, dataset_features, dataset_labels
 from learner.metrics import AccuracyReport, accuracy_report
 from learner.model import ErrorModel, TrainReport
 from learner.plots import write_learning_curve
-from learner.snapshot import save_snapshot
+from learner.snapshot import atomic_write_bytes, load_snapshot, save_snapshot
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -53,10 +61,14 @@ def prepare(
     temperatures: bool = True,
     spec: FeatureSpec | None = None,
 ) -> Prepared:
-    """Features (all the dataset has, or a subset), labels and a random split."""
+    """Features (all the dataset has, or a subset), labels and a random split. With ``spec`` (a
+    model's), the labels are against the model's nominal description."""
     if not 0.0 <= test_fraction < 1.0:
         raise ConfigError(f"test_fraction must be in [0, 1), got {test_fraction}")
     desc = nominal_description(ds)
+    if spec is not None and spec.description is not None:
+        check_same_robot(spec.description, desc, "the model")
+        desc = spec.description
     spec = spec or dataset_feature_spec(ds, desc, secondary=secondary, temperatures=temperatures)
     X = dataset_features(ds, spec)
     Y = dataset_labels(ds, RobotModel(desc))
@@ -86,18 +98,30 @@ def train_on_dataset(
     train_cfg: TrainConfig | None = None,
     on_epoch: Callable[[int, float], None] | None = None,
     out: str | Path | None = None,
+    base: str = DEFAULT_BASE,
 ) -> TrainResult:
-    """Batch-train a model on the training split, report its test accuracy and save the
-    snapshot to ``out`` when given."""
+    """Batch-train a model on ``base`` (identified on the training split), report its test
+    accuracy and save the snapshot to ``out`` when given, with a continual state beside it
+    whose memory is the worst-predicted training points (so ``continual --from`` goes on)."""
     p = prepare(ds, test_fraction=test_fraction, seed=seed)
+    train = np.sort(p.train)
+    physics = make_base(base, p.spec, p.X[train], p.Y[train], data_frame(ds))
     model = ErrorModel.create(
-        p.spec, model_cfg or ModelConfig(), train_cfg or TrainConfig(seed=seed), seed, p.robot
+        p.spec,
+        model_cfg or ModelConfig(),
+        train_cfg or TrainConfig(seed=seed),
+        seed,
+        p.robot,
+        base=physics,
     )
     report = model.fit(p.X[p.train], p.Y[p.train], on_epoch=on_epoch)
     test = accuracy_report(model, p.X[p.test], p.Y[p.test]) if len(p.test) else None
     model.metrics = {} if test is None else test.to_dict()
     if out is not None:
         save_snapshot(model, out, {"n_train": len(p.train), "epochs": report.epochs})
+        learner = ContinualLearner(model, ContinualConfig(seed=seed))
+        learner.remember(p.X[train], p.Y[train])
+        atomic_write_bytes(state_path(out), state_to_bytes(learner.state_dict()))
     return TrainResult(model=model, report=report, test=test, n_train=len(p.train))
 
 
@@ -122,18 +146,40 @@ def continual_on_dataset(
     train_cfg: TrainConfig | None = None,
     on_update: Callable[[UpdateMetrics], None] | None = None,
     out: str | Path | None = None,
+    base: str | None = None,
+    start: ContinualLearner | None = None,
 ) -> ContinualResult:
     """Stream the training split in its recorded order through a :class:`ContinualLearner`
     (``init`` points first, then batches of ``cfg.batch``), evaluating the test split after
-    every update. With ``out`` the final snapshot is saved there and the learning curve beside
-    it (``<out stem>.curve.csv`` and ``.curve.png``)."""
-    p = prepare(ds, test_fraction=test_fraction, seed=seed)
+    every update. ``base`` is ``cfg.base`` or a model file. With ``start`` (a learner carried
+    from another day, :func:`load_learner`) its frames are re-identified from the first
+    ``init`` points before they are learned (:func:`learner.base.reidentify_frames`). With
+    ``out`` the final snapshot is saved there, the learner's state (memory included) and the
+    learning curve beside it (:func:`state_path`, :func:`curve_paths`)."""
+    if start is None:
+        p = prepare(ds, test_fraction=test_fraction, seed=seed)
+        physics = None  # identified by the learner from its first points
+        if base is not None and base.endswith(".toml"):
+            physics = make_base(base, p.spec, p.X[:0], p.Y[:0], data_frame(ds))
+        elif base is not None:
+            cfg = replace(cfg, base=base)
+        model = ErrorModel.create(
+            p.spec,
+            model_cfg or ModelConfig(),
+            train_cfg or TrainConfig(seed=seed),
+            seed,
+            p.robot,
+            base=physics,
+        )
+        learner = ContinualLearner(model, cfg)
+    else:
+        learner = start
+        p = prepare(ds, test_fraction=test_fraction, seed=seed, spec=learner.model.spec)
     train = np.sort(p.train)
-    model = ErrorModel.create(
-        p.spec, model_cfg or ModelConfig(), train_cfg or TrainConfig(seed=seed), seed, p.robot
-    )
-    learner = ContinualLearner(model, cfg)
     Xtr, Ytr = p.X[train], p.Y[train]
+    if start is not None:
+        first = slice(0, cfg.init)
+        learner.rebase(reidentify_frames(learner.base, p.spec, Xtr[first], Ytr[first]))
     Xte, Yte = p.X[p.test], p.Y[p.test]
     updates, curve = [], []
     for m in learner.learn_stream(Xtr, Ytr):
@@ -156,9 +202,26 @@ def continual_on_dataset(
     if out is not None:
         out = Path(out)
         save_snapshot(learner.model, out, {"strategy": cfg.strategy, "n_seen": learner.n_seen})
+        atomic_write_bytes(state_path(out), state_to_bytes(learner.state_dict()))
         title = f"{cfg.strategy}: N_m={cfg.memory}, n_B={cfg.batch}"
         write_learning_curve(curve, curve_paths(out), title)
     return result
+
+
+def state_path(model_path: str | Path) -> Path:
+    """The continual state (memory, both models, counters) written beside a model file."""
+    stem = Path(model_path).with_suffix("")
+    return stem.with_name(stem.name + ".state.safetensors")
+
+
+def load_learner(model_path: str | Path, cfg: ContinualConfig) -> ContinualLearner:
+    """A learner that goes on from a model file: from its state beside it (memory included)
+    when there is one, else from the snapshot alone with an empty memory."""
+    model = load_snapshot(model_path)
+    learner = ContinualLearner(model, cfg)
+    if state_path(model_path).is_file():
+        learner.load_state(state_from_bytes(state_path(model_path).read_bytes()))
+    return learner
 
 
 def curve_paths(out: str | Path) -> tuple[Path, Path]:

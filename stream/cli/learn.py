@@ -1,7 +1,8 @@
 """CLI commands of the learner: ``train``, ``continual``, ``evaluate``, ``experiment paper``.
 
-robocal train --data paper.parquet --out model.safetensors
+robocal train --data paper.parquet --out model.safetensors --base geometric
 robocal continual --data paper.parquet --memory 500 --batch 100 --out cont.safetensors
+robocal continual --from cont.safetensors --data day2.parquet --test-fraction 0 --out c2.safetensors
 robocal evaluate --model model.safetensors --data paper.parquet --json
 robocal experiment paper --data paper.parquet --out study/ --quick
 """
@@ -14,13 +15,16 @@ import sys
 from tqdm import tqdm
 
 from kinematics.dataset import read_dataset
-from learner.config import STRATEGIES, ContinualConfig, TrainConfig
+from learner.base import DEFAULT_BASE
+from learner.config import BASE_KINDS, STRATEGIES, ContinualConfig, TrainConfig
 from learner.experiment import StudyConfig, run_paper_study
+from learner.model import ErrorModel
 from learner.snapshot import load_snapshot
 from learner.workflow import (
     continual_on_dataset,
     curve_paths,
     evaluate_on_dataset,
+    load_learner,
     train_on_dataset,
 )
 from stream.cli._base import Command, add_json_flag, emit
@@ -42,6 +46,15 @@ def _add_split(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="split, weights and batch order")
 
 
+def _add_base(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--base",
+        default=DEFAULT_BASE,
+        help=f"physics base the network learns the residual of: {', '.join(BASE_KINDS)} or a "
+        f"model file from `robocal calibrate`/`robocal gap` (.toml); default {DEFAULT_BASE}",
+    )
+
+
 class Train(Command):
     name = "train"
     help = "batch-train an evidential error model on a dataset and report its test accuracy"
@@ -50,6 +63,7 @@ class Train(Command):
         _add_split(parser)
         parser.add_argument("--out", required=True, help="model snapshot to write (.safetensors)")
         parser.add_argument("--max-epochs", type=int, default=TrainConfig().max_epochs)
+        _add_base(parser)
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
@@ -63,6 +77,7 @@ class Train(Command):
                 train_cfg=cfg,
                 on_epoch=lambda e, v: (bar.update(), bar.set_postfix(val_mse=f"{v:.4g}")),
                 out=args.out,
+                base=args.base,
             )
         test = result.test.to_dict() if result.test else {}
         out = {
@@ -70,9 +85,13 @@ class Train(Command):
             "n_train": result.n_train,
             "epochs": result.report.epochs,
             "n_weights": result.model.n_weights,
+            "base": _base_summary(result.model),
             "test": test,
         }
-        text = f"model -> {args.out} ({result.n_train} points, {result.report.epochs} epochs)"
+        text = (
+            f"model -> {args.out} ({result.n_train} points, {result.report.epochs} epochs, "
+            f"base {out['base']['kind']})"
+        )
         if test:
             text += "\n" + _report_text("test", test)
         emit(out, args.json, text)
@@ -92,6 +111,14 @@ class Continual(Command):
         parser.add_argument("--strategy", choices=STRATEGIES, default=defaults.strategy)
         parser.add_argument("--epochs-per-update", type=int, default=defaults.epochs_per_update)
         parser.add_argument("--out", required=True, help="final model snapshot (.safetensors)")
+        parser.add_argument(
+            "--from",
+            dest="start",
+            default=None,
+            help="go on from this model (with its replay memory when its .state.safetensors is "
+            "beside it); its frames are re-identified from the first --init points",
+        )
+        _add_base(parser)
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
@@ -104,6 +131,7 @@ class Continual(Command):
             epochs_per_update=args.epochs_per_update,
             seed=args.seed,
         )
+        start = None if args.start is None else load_learner(args.start, cfg)
         n_updates = 1 + -(
             -max(0, round(len(ds) * (1 - args.test_fraction)) - cfg.init) // cfg.batch
         )
@@ -116,6 +144,8 @@ class Continual(Command):
                 train_cfg=TrainConfig(seed=args.seed),
                 on_update=lambda m: bar.update(),
                 out=args.out,
+                base=None if start is not None else args.base,
+                start=start,
             )
         csv_path, png_path = curve_paths(args.out)
         test = result.test.to_dict() if result.test else {}
@@ -125,6 +155,7 @@ class Continual(Command):
             "curve_png": str(png_path),
             "updates": len(result.updates),
             "train_time_s": result.total_time_s,
+            "base": _base_summary(result.model),
             "test": test,
         }
         text = (
@@ -135,6 +166,12 @@ class Continual(Command):
             text += "\n" + _report_text("test", test)
         emit(out, args.json, text)
         return 0
+
+
+def _base_summary(model: ErrorModel) -> dict:
+    """What the model's physics base is, for the CLI's output."""
+    base = model.base
+    return {"kind": model.base_kind, "note": "" if base is None else base.note}
 
 
 class Evaluate(Command):

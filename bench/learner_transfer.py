@@ -1,0 +1,96 @@
+"""A model carried into a new day: trained on one UR10 series (physics base + residual, its
+training split), then continued on the other series as ``robocal continual --from`` does. For
+k = 0, 10, 25, 50, 100 of the new series' first points: the base's frames (``T_W_0``, tool)
+re-identified from those k points, one update on them, and the new series' held-out test error
+(10 %, seed 0) with 90 % coverage and how much wider the epistemic spread is there than on the
+source's own test points. Both directions, ``--seeds`` seeds.
+
+    .venv/bin/python bench/learner_transfer.py --a /tmp/a.parquet --b /tmp/b.parquet --seeds 0 1 2
+"""
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from kinematics.dataset import read_dataset
+from learner.base import reidentify_frames
+from learner.config import ContinualConfig, TrainConfig
+from learner.metrics import accuracy_report
+from learner.workflow import load_learner, prepare, train_on_dataset
+
+STEPS = (0, 10, 25, 50, 100)
+
+
+def transfer(source: str, target: str, seed: int, epochs: int, folder: Path) -> dict:
+    model_path = folder / f"source_{seed}.safetensors"
+    src = read_dataset(source)
+    result = train_on_dataset(
+        src, seed=seed, train_cfg=TrainConfig(max_epochs=epochs, seed=seed), out=model_path
+    )
+    cfg = ContinualConfig(seed=seed)
+    p_src = prepare(src, test_fraction=0.1, seed=seed, spec=result.model.spec)
+    epi_src = np.sqrt(result.model.predict(p_src.X[p_src.test]).epistemic()[:, :3]).mean()
+    p = prepare(read_dataset(target), test_fraction=0.1, seed=0, spec=result.model.spec)
+    stream = np.sort(p.train)
+    X, Y, Xte, Yte = p.X[stream], p.Y[stream], p.X[p.test], p.Y[p.test]
+    rows = []
+    for k in STEPS:
+        learner = load_learner(model_path, cfg)
+        t0 = time.perf_counter()
+        if k:
+            learner.rebase(reidentify_frames(learner.base, p.spec, X[:k], Y[:k]))
+            frames_only = accuracy_report(learner.model, Xte, Yte).mean_mm
+            learner.update(X[:k], Y[:k])
+        else:
+            frames_only = float("nan")
+        r = accuracy_report(learner.model, Xte, Yte)
+        epi = np.sqrt(learner.model.predict(Xte).epistemic()[:, :3]).mean()
+        rows.append(
+            {
+                "k": k,
+                "frames_only_mm": frames_only,
+                "mean_mm": r.mean_mm,
+                "p95_mm": r.p95_mm,
+                "max_mm": r.max_mm,
+                "coverage_90": r.coverage_90,
+                "epistemic_ratio": float(epi / epi_src),
+                "time_s": time.perf_counter() - t0,
+            }
+        )
+    return {"source_test_mm": result.test.mean_mm, "steps": rows}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--a", default="/tmp/a.parquet")
+    ap.add_argument("--b", default="/tmp/b.parquet")
+    ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    ap.add_argument("--max-epochs", type=int, default=300)
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, (src, dst) in {"A->B": (args.a, args.b), "B->A": (args.b, args.a)}.items():
+            runs = [transfer(src, dst, s, args.max_epochs, Path(tmp)) for s in args.seeds]
+            steps = [
+                {
+                    key: float(np.mean([r["steps"][i][key] for r in runs]))
+                    for key in runs[0]["steps"][i]
+                }
+                for i in range(len(STEPS))
+            ]
+            out[name] = {
+                "source_test_mm": float(np.mean([r["source_test_mm"] for r in runs])),
+                "steps": steps,
+                "per_seed_mean_mm": [[round(s["mean_mm"], 4) for s in r["steps"]] for r in runs],
+            }
+    print(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()

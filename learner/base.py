@@ -1,0 +1,246 @@
+"""The physics base of the error model: what a kinematic description predicts, so the network
+learns only what it leaves.
+
+A base is a description (calibrated DH, tool ``T_6_S``), the pose ``T_0_B`` of its robot frame
+in the data's base frame, and the effects ``robocal gap`` named (a model file). Its error
+against the nominal model, :meth:`PhysicsBase.error`, is added to the network's residual, so
+the model still predicts DESIGN.md's label, the pose error against the nominal. Kinds:
+
+- ``nominal``: the nominal description; the error model is the learner alone;
+- ``geometric``: a classical geometric calibration (``robocal calibrate``) of the training points;
+- ``auto``: the geometric calibration of the first ``identify_points`` points, or the nominal
+  when those points cannot identify it (the snapshot says why);
+- a path: a calibrated model file (``robocal calibrate --out``) or ``robocal gap``'s model file.
+
+On real UR10 series the geometric base with a residual network is the most accurate of these
+(BENCHMARKS.md, "Real UR10"), so it is the default.
+
+>>> from kinematics.description import load_description
+>>> from learner.features import feature_spec
+>>> spec = feature_spec(load_description("ur10"), 0, False)
+>>> nominal_base(spec.description).error(spec, np.zeros((2, 6)), None).shape
+(2, 6)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from kinematics.calibration import GeometricFrames, apply_calibration, calibrate
+from kinematics.dataset import Dataset, DatasetMeta
+from kinematics.description import RobotDescription
+from kinematics.effects import Conditions, Effect, Perturbation, perturbed_poses
+from kinematics.errors import ConfigError, IdentifiabilityError
+from kinematics.gap.conditions import observations_from_dataset
+from kinematics.gap.fitting import fit_effects
+from kinematics.gap.model_file import EffectEntry, ModelFile, load_model_file
+from kinematics.model import RobotModel
+from kinematics.transforms import apply_error, invert, pose_error, xyz_quat_from_transform
+from learner.config import BASE_KINDS
+from learner.features import FeatureSpec
+
+DEFAULT_BASE = "geometric"
+#: Points ``auto`` identifies the geometric base from (the first of the stream).
+IDENTIFY_POINTS = 200
+#: Effects a base evaluates from model features alone (others need signals a model lacks).
+_FEATURE_EFFECTS = ("geometric", "joint_compliance", "thermal_expansion", "gear_periodic")
+
+
+@dataclass(frozen=True, kw_only=True)
+class PhysicsBase:
+    """Predicted sensor poses from a description, a frame ``T_0_B`` (4, 4) and effects."""
+
+    kind: str
+    description: RobotDescription
+    T_0_B: np.ndarray
+    effects: tuple[EffectEntry, ...] = ()
+    note: str = ""
+
+    @cached_property
+    def model(self) -> RobotModel:
+        """The base's kinematic model (built once)."""
+        return RobotModel(self.description)
+
+    def blocks(self) -> list[tuple[Effect, np.ndarray]]:
+        """The effects with their parameters, ready for :func:`perturbed_poses`."""
+        return ModelFile(
+            description=self.description, T_W_0=np.eye(4), effects=self.effects
+        ).blocks()
+
+    def poses(self, spec: FeatureSpec, X: np.ndarray) -> np.ndarray:
+        """Sensor poses ``T_0_S`` ``(N, 4, 4)`` in the data's base frame at raw features ``X``."""
+        T = perturbed_poses(self.model, _conditions(spec, X), self._blocks)
+        return self.T_0_B[None] @ T
+
+    def error(self, spec: FeatureSpec, X: np.ndarray, nominal: RobotModel) -> np.ndarray:
+        """The base's pose error ``(N, 6)`` (m, rad) against the ``nominal`` model."""
+        if self.kind == "nominal":
+            return np.zeros((np.shape(X)[0], 6))
+        T_nominal = perturbed_poses(nominal, _conditions(spec, X), [])
+        return pose_error(self.poses(spec, X), T_nominal)
+
+    @cached_property
+    def _blocks(self) -> list[tuple[Effect, np.ndarray]]:
+        return self.blocks()
+
+    def with_frames(self, T_0_B: np.ndarray, tool: np.ndarray) -> PhysicsBase:
+        """The same base with a re-identified frame and tool (a new day, a re-mounted tool)."""
+        return replace(
+            self, T_0_B=np.asarray(T_0_B, float), description=self.description.with_tool(tool)
+        )
+
+
+def nominal_base(desc: RobotDescription) -> PhysicsBase:
+    """The nominal description as a base: the error model is the learner alone."""
+    return PhysicsBase(kind="nominal", description=desc, T_0_B=np.eye(4))
+
+
+def data_frame(ds: Dataset) -> np.ndarray:
+    """``T_W_0`` of the frame a dataset's labels are in (identity for base-frame data)."""
+    if ds.meta.frame == "base" or ds.meta.T_W_0 is None:
+        return np.eye(4)
+    return np.asarray(ds.meta.T_W_0, dtype=float)
+
+
+def measured_dataset(spec: FeatureSpec, X: np.ndarray, Y: np.ndarray) -> Dataset:
+    """The measured poses that labels ``Y`` (against the nominal ``spec.description``) encode,
+    as a base-frame dataset: what calibration reads, rebuilt from a model's own arrays."""
+    desc = spec.description
+    X = np.asarray(X, dtype=float)
+    T = apply_error(perturbed_poses(RobotModel(desc), _conditions(spec, X), []), Y)
+    xyz, quat = xyz_quat_from_transform(T)
+    columns = {"t": np.arange(len(X), dtype=float)}
+    columns |= {f"q{i}": X[:, i - 1] for i in range(1, desc.n_joints + 1)}
+    columns |= {n: X[:, i] for i, n in enumerate(spec.names) if n.startswith("temp_")}
+    columns |= dict(zip(("x", "y", "z"), xyz.T, strict=True))
+    columns |= dict(zip(("qx", "qy", "qz", "qw"), quat.T, strict=True))
+    meta = DatasetMeta(robot=desc.name, frame="base", T_6_S=desc.tool.tolist())
+    return Dataset(pd.DataFrame(columns), meta)
+
+
+def identify_base(kind: str, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray) -> PhysicsBase:
+    """The base of ``kind`` (:data:`BASE_KINDS`) identified from points ``X, Y`` (labels against
+    the nominal): ``auto`` falls back to the nominal where the points cannot identify it."""
+    if kind not in BASE_KINDS:
+        raise ConfigError(f"base must be one of {BASE_KINDS} or a model file, got {kind!r}")
+    if kind == "nominal":
+        return nominal_base(spec.description)
+    n = len(X) if kind == "geometric" else min(len(X), IDENTIFY_POINTS)
+    try:
+        result = calibrate(spec.description, measured_dataset(spec, X[:n], Y[:n]))
+    except IdentifiabilityError as exc:
+        if kind == "geometric":
+            raise
+        return replace(nominal_base(spec.description), kind=kind, note=f"nominal: {exc}")
+    cond = result.identifiability.condition_number
+    return PhysicsBase(
+        kind=kind,
+        description=result.description,
+        T_0_B=result.T_W_0,
+        note=f"identified from {n} points, condition number {cond:.3g}",
+    )
+
+
+def file_base(path: str | Path, spec: FeatureSpec, frame: np.ndarray) -> PhysicsBase:
+    """A calibrated or gap model file as a base, checked against the nominal; ``frame`` is the
+    ``T_W_0`` of the data's base frame (the file's ``T_W_0`` is against the same tracker)."""
+    model = load_model_file(path)
+    check_same_robot(model.description, spec.description, f"base file {path}")
+    unusable = [e.name for e in model.effects if e.name not in _FEATURE_EFFECTS]
+    if unusable:
+        raise ConfigError(
+            f"base file {path}: effect(s) {', '.join(unusable)} need signals a model's features "
+            f"do not carry; a base can use {', '.join(_FEATURE_EFFECTS)}"
+        )
+    for entry in model.effects:
+        needs = [n for n in entry.options.get("sensors", []) if f"temp_{n}" not in spec.names]
+        if needs:
+            raise ConfigError(f"base file {path}: effect {entry.name!r} needs temp_{needs[0]}")
+    return PhysicsBase(
+        kind="file",
+        description=model.description,
+        T_0_B=invert(frame) @ model.T_W_0,
+        effects=model.effects,
+        note=str(path),
+    )
+
+
+def reidentify_frames(
+    base: PhysicsBase, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray
+) -> PhysicsBase:
+    """The base with ``T_0_B`` and its tool re-identified from ``X, Y`` (a new day's first
+    points), its kinematics and effects held: the tracker moved, the tool was re-mounted. A
+    nominal base becomes a ``frames`` base."""
+    desc = base.description
+    n = desc.n_joints
+    obs = observations_from_dataset(measured_dataset(spec, X, Y), desc)
+    obs = replace(obs, T_W_0=base.T_0_B)
+    frames = GeometricFrames(desc, tuple(range(5 * n, 5 * n + 12)))
+    blocks = [(frames, np.zeros(12)), *((_Held(e, p), np.zeros(0)) for e, p in base.blocks())]
+    fit = fit_effects(base.model, obs, blocks)
+    calibrated, T_0_B = apply_calibration(desc, obs.T_W_0, frames.full(fit.params[0]))
+    kind = "frames" if base.kind == "nominal" else base.kind
+    return replace(base.with_frames(T_0_B, calibrated.tool), kind=kind)
+
+
+def make_base(
+    base: str, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray, frame: np.ndarray | None = None
+) -> PhysicsBase:
+    """The base ``base`` names: a kind identified from the training points ``X, Y``, or a model
+    file (``.toml``) whose ``T_W_0`` is against the tracker of the data's ``frame``."""
+    if str(base).endswith(".toml"):
+        return file_base(base, spec, np.eye(4) if frame is None else frame)
+    return identify_base(base, spec, X, Y)
+
+
+class _Held(Effect):
+    """An effect held at known parameters while others are fitted (no free parameters)."""
+
+    def __init__(self, effect: Effect, params: np.ndarray) -> None:
+        self.effect, self.params, self.name = effect, params, effect.name
+
+    def parameter_names(self, desc: RobotDescription) -> tuple[str, ...]:
+        return ()
+
+    def perturbation(self, model: RobotModel, params: np.ndarray, cond: Conditions) -> Perturbation:
+        return self.effect.perturbation(model, self.params, cond)
+
+
+def check_same_robot(desc: RobotDescription, nominal: RobotDescription, what: str) -> None:
+    """:class:`ConfigError` naming the mismatch when ``desc`` is not ``nominal``'s robot."""
+    if desc.n_joints != nominal.n_joints or desc.name != nominal.name:
+        raise ConfigError(
+            f"{what} is for robot {desc.name!r} ({desc.n_joints} joints), the data is of "
+            f"{nominal.name!r} ({nominal.n_joints} joints)"
+        )
+
+
+def _conditions(spec: FeatureSpec, X: np.ndarray) -> Conditions:
+    """Effect conditions from raw features: joints and named temperatures (no time, no loads)."""
+    X = np.asarray(X, dtype=float)
+    n = spec.description.n_joints
+    temp_idx = [i for i, name in enumerate(spec.names) if name.startswith("temp_")]
+    return Conditions(
+        q=X[:, :n],
+        t=np.zeros(len(X)),
+        temperatures=X[:, temp_idx] if temp_idx else None,
+        temperature_names=tuple(spec.names[i].removeprefix("temp_") for i in temp_idx),
+    )
+
+
+__all__ = [
+    "BASE_KINDS",
+    "DEFAULT_BASE",
+    "PhysicsBase",
+    "check_same_robot",
+    "data_frame",
+    "identify_base",
+    "make_base",
+    "nominal_base",
+    "reidentify_frames",
+]

@@ -1,0 +1,149 @@
+"""The physics base: identified from points, carried by snapshots, re-identified on a new day."""
+
+import numpy as np
+import pytest
+
+from kinematics.errors import ConfigError
+from kinematics.model import RobotModel
+from kinematics.transforms import apply_error, pose_error
+from learner.base import identify_base, make_base, nominal_base, reidentify_frames
+from learner.config import ContinualConfig, ModelConfig, TrainConfig
+from learner.continual import ContinualLearner
+from learner.model import ErrorModel
+from learner.snapshot import snapshot_from_bytes, snapshot_to_bytes
+from learner.workflow import prepare
+from tests.learner.conftest import make_dataset
+
+
+@pytest.fixture(scope="module")
+def points():
+    return prepare(make_dataset(300, seed=3), test_fraction=0.0)
+
+
+def _position_mm(E: np.ndarray) -> float:
+    return float(np.linalg.norm(E[:, :3], axis=1).mean() * 1e3)
+
+
+def test_geometric_base_takes_the_geometry_and_leaves_the_rest(points):
+    p = points
+    nominal = RobotModel(p.spec.description)
+    base = identify_base("geometric", p.spec, p.X[:200], p.Y[:200])
+    assert base.kind == "geometric" and "200 points" in base.note
+    before = _position_mm(p.Y[200:])
+    after = _position_mm(p.Y[200:] - base.error(p.spec, p.X[200:], nominal))
+    assert before > 1.0  # mm of DH deviations, deflections and thermal growth
+    assert after < 0.4 * before  # held-out: the geometry is gone, deflections remain
+    assert np.all(nominal_base(p.spec.description).error(p.spec, p.X, nominal) == 0)
+
+
+def test_auto_falls_back_to_nominal_when_the_points_cannot_identify(points):
+    p = points
+    base = identify_base("auto", p.spec, p.X[:5], p.Y[:5])
+    assert base.kind == "auto" and base.note.startswith("nominal:")
+    with pytest.raises(ConfigError, match="base must be one of"):
+        identify_base("magic", p.spec, p.X, p.Y)
+
+
+def test_the_model_predicts_base_plus_residual_and_its_snapshot_reproduces_it(points):
+    p = points
+    base = identify_base("geometric", p.spec, p.X[:200], p.Y[:200])
+    model = ErrorModel.create(
+        p.spec, ModelConfig(hidden_layers=1, neurons=16), TrainConfig(max_epochs=5), 0, base=base
+    )
+    model.fit(p.X[:200], p.Y[:200])
+    ev = model.predict(p.X[200:])
+    np.testing.assert_allclose(
+        ev.gamma - model.base_error(p.X[200:]),
+        ev.gamma - base.error(p.spec, p.X[200:], RobotModel(p.spec.description)),
+    )
+    back = snapshot_from_bytes(snapshot_to_bytes(model))
+    assert back.base_kind == "geometric" and back.base.note == base.note
+    np.testing.assert_array_equal(back.predict(p.X[200:]).gamma, ev.gamma)
+
+
+def _moved(p, T_move: np.ndarray, tool_move: np.ndarray) -> np.ndarray:
+    """Labels of the same points seen after the tracker (base frame) and the tool moved."""
+    nominal = RobotModel(p.spec.description).fk(p.X[:, :6])
+    measured = apply_error(nominal, p.Y)
+    return pose_error(T_move[None] @ measured @ tool_move[None], nominal)
+
+
+def _frame(xyz, angle):
+    T = np.eye(4)
+    c, s = np.cos(angle), np.sin(angle)
+    T[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+    T[:3, 3] = xyz
+    return T
+
+
+def test_frames_are_reidentified_from_a_new_days_first_points(points):
+    p = points
+    base = identify_base("geometric", p.spec, p.X[:200], p.Y[:200])
+    nominal = RobotModel(p.spec.description)
+    Y2 = _moved(p, _frame([2e-3, -1e-3, 0.5e-3], 2e-3), _frame([0, 1e-3, 0], 1e-3))
+    stale = _position_mm(Y2[200:] - base.error(p.spec, p.X[200:], nominal))
+    new = reidentify_frames(base, p.spec, p.X[:20], Y2[:20])
+    fresh = _position_mm(Y2[200:] - new.error(p.spec, p.X[200:], nominal))
+    same_day = _position_mm(p.Y[200:] - base.error(p.spec, p.X[200:], nominal))
+    assert stale > 1.0 and fresh < 1.3 * same_day
+    assert new.kind == "geometric"
+    assert reidentify_frames(nominal_base(p.spec.description), p.spec, p.X[:20], Y2[:20]).kind == (
+        "frames"
+    )
+
+
+def test_rebase_keeps_what_the_memory_teaches(points):
+    p = points
+    model = ErrorModel.create(
+        p.spec, ModelConfig(hidden_layers=1, neurons=16), TrainConfig(max_epochs=5), 0
+    )
+    learner = ContinualLearner(model, ContinualConfig(memory=60, batch=50, init=100))
+    learner.initialize(p.X[:100], p.Y[:100])
+    before = learner.trained.predict(learner.memory.x).gamma - learner.memory.y
+    new = reidentify_frames(learner.base, p.spec, p.X[:20], p.Y[:20] + [1e-3, 0, 0, 0, 0, 0])
+    learner.rebase(new)
+    after = learner.trained.predict(learner.memory.x).gamma - learner.memory.y
+    np.testing.assert_allclose(after, before, atol=1e-12)
+    assert learner.model.base is new
+
+
+def test_a_base_file_of_another_robot_is_refused(points, tmp_path):
+    from kinematics.description import load_description
+    from kinematics.gap.model_file import ModelFile, model_to_toml
+
+    other = tmp_path / "ur10.toml"
+    other.write_text(
+        model_to_toml(ModelFile(description=load_description("ur10"), T_W_0=np.eye(4), effects=()))
+    )
+    with pytest.raises(ConfigError, match="is for robot 'ur10'"):
+        make_base(str(other), points.spec, points.X, points.Y)
+
+
+def test_adaptive_intervals_widen_under_a_shift_and_hold_in_distribution(points):
+    p = points
+    model = ErrorModel.create(
+        p.spec, ModelConfig(hidden_layers=1, neurons=16), TrainConfig(max_epochs=30), 0
+    )
+    learner = ContinualLearner(model, ContinualConfig(memory=100, batch=20, init=100, holdout=0.2))
+    learner.initialize(p.X[:100], p.Y[:100])
+    shifted = p.Y[100:].copy()
+    shifted[:, :3] += np.random.default_rng(0).normal(0, 3e-3, (len(shifted), 3))
+    for i in range(0, 100, 20):
+        learner.update(p.X[100 + i : 120 + i], shifted[i : i + 20])
+    assert learner.aci_log_scale[:3].min() > 0.2  # misses widened the position intervals
+    off = ContinualLearner(
+        ErrorModel.create(
+            p.spec, ModelConfig(hidden_layers=1, neurons=16), TrainConfig(max_epochs=30), 0
+        ),
+        ContinualConfig(memory=100, batch=20, init=100, holdout=0.2, aci_rate=0.0),
+    )
+    off.initialize(p.X[:100], p.Y[:100])
+    for i in range(0, 100, 20):
+        off.update(p.X[100 + i : 120 + i], shifted[i : i + 20])
+    assert np.all(off.aci_log_scale == 0)
+    lo, hi = learner.model.predict(p.X[200:]).interval(0.9)
+    lo_off, hi_off = off.model.predict(p.X[200:]).interval(0.9)
+    Y = shifted[100:]
+    inside = ((lo <= Y) & (hi >= Y))[:, :3].mean()
+    inside_off = ((lo_off <= Y) & (hi_off >= Y))[:, :3].mean()
+    assert inside > inside_off
