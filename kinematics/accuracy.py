@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from kinematics.dataset import Dataset, read_dataset, validate
-from kinematics.description import RobotDescription, load_description
+from kinematics.description import RobotDescription
+from kinematics.identity import description_for
 from kinematics.model import RobotModel
 from kinematics.transforms import pose_error, rotation_angle
 
@@ -93,10 +94,11 @@ def summarize_file(
 ) -> AccuracySummary:
     """Read a dataset, check it against its robot's limits, summarise; optionally plot.
 
-    ``robot`` (a shipped name or TOML path) defaults to the dataset's ``meta.robot``.
+    ``robot`` (a shipped name or TOML path) defaults to the dataset's ``meta.robot``; either
+    is matched to the dataset by :func:`kinematics.identity.description_for`.
     """
     ds = read_dataset(path)
-    desc = load_description(robot or ds.meta.robot)
+    desc = description_for(ds, robot, path)
     validate(ds, str(path), desc.limits_rad)
     summary = accuracy_summary(ds, desc)
     if histogram is not None:

@@ -13,10 +13,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from kinematics import identity
 from kinematics.dataset import Dataset, temperature_columns
 from kinematics.description import RobotDescription
 from kinematics.effects._base import Conditions
-from kinematics.errors import DatasetError
 from kinematics.frames import fit_frames
 from kinematics.model import RobotModel
 
@@ -52,13 +52,9 @@ class Observations:
 
 
 def check_match(desc: RobotDescription, ds: Dataset) -> None:
-    """Raise :class:`DatasetError` when the dataset is not of this robot."""
-    if ds.n_joints != desc.n_joints:
-        raise DatasetError(
-            f"dataset has {ds.n_joints} joint columns, robot {desc.name!r} has {desc.n_joints}"
-        )
-    if ds.meta.robot != desc.name:
-        raise DatasetError(f"dataset is of robot {ds.meta.robot!r}, description is {desc.name!r}")
+    """Raise :class:`DatasetError` when the dataset is not of this robot (the one rule of
+    :func:`kinematics.identity.check_match`: joint count and robot name)."""
+    identity.check_match(desc, ds)
 
 
 def cell_description(desc: RobotDescription, ds: Dataset) -> RobotDescription:

@@ -7,16 +7,18 @@ from pathlib import Path
 
 from kinematics.calibration import CalibrationConfig, CalibrationResult, calibrate
 from kinematics.dataset import Dataset, read_dataset
-from kinematics.description import RobotDescription, load_description
+from kinematics.description import RobotDescription
 from kinematics.gap.model_file import ModelFile, model_to_toml
 from kinematics.gap.report import ReportFiles, write_report
 from kinematics.gap.workflow import GapConfig, GapResult, run_gap
+from kinematics.identity import description_for
 
 
 def load_inputs(data: str | Path, robot: str | Path | None) -> tuple[RobotDescription, Dataset]:
-    """The dataset at ``data`` and the description ``robot`` (default: the dataset's robot)."""
+    """The dataset at ``data`` and the description ``robot`` (default: the dataset's robot),
+    matched by :func:`kinematics.identity.description_for`."""
     ds = read_dataset(data)
-    return load_description(robot or ds.meta.robot), ds
+    return description_for(ds, robot, data), ds
 
 
 def gap_from_files(
