@@ -41,10 +41,9 @@ from kinematics.gap.fitting import fit_effects
 from kinematics.gap.model_file import EffectEntry, ModelFile, load_model_file
 from kinematics.model import RobotModel
 from kinematics.transforms import apply_error, invert, pose_error, xyz_quat_from_transform
-from learner.config import BASE_KINDS
+from learner.config import BASE_KINDS, DEFAULT_BASE
 from learner.features import FeatureSpec
 
-DEFAULT_BASE = "geometric"
 #: Points ``auto`` identifies the geometric base from (the first of the stream).
 IDENTIFY_POINTS = 200
 #: Effects a base evaluates from model features alone (others need signals a model lacks).

@@ -22,6 +22,8 @@ STRATEGIES = ("max_error", "naive", "reservoir", "full")
 ENCODINGS = ("kinematic", "minmax")
 #: Physics bases the learner can identify itself (:mod:`learner.base`; a file is a path).
 BASE_KINDS = ("nominal", "geometric", "auto")
+#: The base that measured best on real data (BENCHMARKS.md, "Real UR10").
+DEFAULT_BASE = "geometric"
 
 
 def _check(cond: bool, msg: str) -> None:
@@ -121,7 +123,7 @@ class ContinualConfig:
     ``memory`` 500 is the published setting; on the paper campaign 2,000 matches batch
     training at about twice the update time (BENCHMARKS.md). ``base`` is the physics base the
     first model is identified on from the ``init`` points (:mod:`learner.base`; a model that
-    has one keeps it). ``aci_rate`` is the step of the adaptive conformal interval scale per
+    has one keeps it); ``auto`` takes the nominal when they are too few to identify it. ``aci_rate`` is the step of the adaptive conformal interval scale per
     new point outside (or inside) the ``aci_level`` interval, in log units (0 turns it off)."""
 
     memory: int = 500
@@ -134,7 +136,7 @@ class ContinualConfig:
     holdout: float = 0.1
     calibration_size: int = 200
     average: float = 0.3
-    base: str = "geometric"
+    base: str = "auto"
     aci_rate: float = 0.05
     aci_level: float = 0.9
     seed: int = 0

@@ -26,6 +26,7 @@ import json
 import time
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -39,7 +40,7 @@ from learner.base import PhysicsBase, identify_base, nominal_base
 from learner.config import ContinualConfig
 from learner.model import MIN_CALIBRATION, ErrorModel, TrainReport
 from learner.replay import replay_strategy
-from learner.snapshot import snapshot_from_bytes, snapshot_to_bytes
+from learner.snapshot import load_snapshot, snapshot_from_bytes, snapshot_to_bytes
 
 STATE_SCHEMA = "robocal.continual"
 
@@ -348,3 +349,19 @@ def state_from_bytes(data: bytes) -> dict:
         }
     except (SafetensorError, ValueError, KeyError, TypeError) as exc:
         raise SnapshotError(f"continual state unreadable: {exc}") from None
+
+
+def state_path(model_path: str | Path) -> Path:
+    """The continual state (memory, both models, counters) written beside a model file."""
+    stem = Path(model_path).with_suffix("")
+    return stem.with_name(stem.name + ".state.safetensors")
+
+
+def load_learner(model_path: str | Path, cfg: ContinualConfig) -> ContinualLearner:
+    """A learner that goes on from a model file: from its state beside it (memory included)
+    when there is one, else from the snapshot alone with an empty memory."""
+    model = load_snapshot(model_path)
+    learner = ContinualLearner(model, cfg)
+    if state_path(model_path).is_file():
+        learner.load_state(state_from_bytes(state_path(model_path).read_bytes()))
+    return learner

@@ -30,6 +30,7 @@ from kinematics.dataset import Dataset
 from kinematics.description import load_description
 from kinematics.errors import ConfigError
 from kinematics.model import RobotModel
+from learner.base import DEFAULT_BASE, PhysicsBase, data_frame, make_base
 from learner.config import ModelConfig, TrainConfig
 from learner.features import FeatureSpec, dataset_feature_spec, dataset_features, dataset_labels
 from learner.hpo_space import SearchSpace, TrialParams, suggest
@@ -188,9 +189,15 @@ def trial_configs(
 
 
 def cv_objective(
-    spec: FeatureSpec, X: np.ndarray, Y: np.ndarray, space: SearchSpace, cfg: HpoConfig
+    spec: FeatureSpec,
+    X: np.ndarray,
+    Y: np.ndarray,
+    space: SearchSpace,
+    cfg: HpoConfig,
+    base: PhysicsBase | None = None,
 ) -> Objective:
-    """The trial objective: k-fold CV score, reported every epoch (see the module docstring)."""
+    """The trial objective: k-fold CV score of residual networks on ``base``, reported every
+    epoch (see the module docstring)."""
     folds = cv_folds(len(X), cfg.folds, cfg.seed)
 
     def objective(trial: optuna.Trial) -> float:
@@ -199,7 +206,7 @@ def cv_objective(
         best_epochs: list[int] = []
         for k, val in enumerate(folds):
             train = np.setdiff1d(np.arange(len(X)), val)
-            model = ErrorModel.create(spec, model_cfg, train_cfg, seed=cfg.seed + k)
+            model = ErrorModel.create(spec, model_cfg, train_cfg, seed=cfg.seed + k, base=base)
             if k == 0:
                 trial.set_user_attr("n_weights", model.n_weights)
             running = [math.inf]
@@ -232,9 +239,11 @@ def search(
     out: str | Path | None = None,
     robot: str = "",
     on_trial: Callable[[Progress], None] | None = None,
+    base: PhysicsBase | None = None,
 ) -> HpoResult:
     """Run (or resume, or join) the study on ``storage`` up to ``cfg.trials`` trials, select
-    among the best the smallest model, retrain it on all of ``X, Y`` and save it to ``out``."""
+    among the best the smallest model, retrain it on all of ``X, Y`` and save it to ``out``.
+    Every network learns the residual of ``base`` (None: the nominal)."""
     start = time.perf_counter()
     study = make_study(
         open_storage(storage),
@@ -246,7 +255,7 @@ def search(
         prune=cfg.prune,
         n_startup_trials=cfg.startup_trials,
     )
-    objective = cv_objective(spec, X, Y, space or SearchSpace(), cfg)
+    objective = cv_objective(spec, X, Y, space or SearchSpace(), cfg, base)
     mine = run_trials(
         study,
         objective,
@@ -257,7 +266,7 @@ def search(
     )
     chosen = select_trial(study, cfg.top_k)
     epochs = max(1, round(float(np.mean(chosen.user_attrs.get("best_epochs", [cfg.max_epochs])))))
-    model = retrain(spec, X, Y, TrialParams.from_dict(chosen.params), cfg, epochs, robot)
+    model = retrain(spec, X, Y, TrialParams.from_dict(chosen.params), cfg, epochs, robot, base)
     model.metrics["cv_val_mse"] = float(chosen.value)
     if out is not None:
         hpo_meta = {"study": cfg.study, "trial": chosen.number, "params": chosen.params}
@@ -289,10 +298,11 @@ def retrain(
     cfg: HpoConfig,
     epochs: int,
     robot: str = "",
+    base: PhysicsBase | None = None,
 ) -> ErrorModel:
-    """A fresh model of ``params`` trained on all of ``X, Y`` for ``epochs`` (no hold-out)."""
+    """A fresh model of ``params`` on ``base`` trained on all of ``X, Y`` for ``epochs``."""
     model_cfg, train_cfg = trial_configs(params, cfg, max_epochs=epochs, val_fraction=0.0)
-    model = ErrorModel.create(spec, model_cfg, train_cfg, seed=cfg.seed, robot=robot)
+    model = ErrorModel.create(spec, model_cfg, train_cfg, seed=cfg.seed, robot=robot, base=base)
     torch.manual_seed(cfg.seed)  # dropout masks come from torch's global generator
     model.fit(X, Y)
     return model
@@ -313,9 +323,22 @@ def run_hpo(
     space: SearchSpace | None = None,
     out: str | Path | None = None,
     on_trial: Callable[[Progress], None] | None = None,
+    base: str = DEFAULT_BASE,
 ) -> HpoResult:
-    """:func:`search` on every feature and the labels of a dataset (what ``robocal hpo`` runs)."""
+    """:func:`search` on every feature and the labels of a dataset (what ``robocal hpo`` runs),
+    on the physics ``base`` identified from all its points (a few dozen parameters, shared by
+    every fold: the folds compare networks, not bases)."""
     spec, X, Y = dataset_arrays(ds)
+    physics = make_base(base, spec, X, Y, data_frame(ds))
     return search(
-        spec, X, Y, cfg, storage, space=space, out=out, robot=ds.meta.robot, on_trial=on_trial
+        spec,
+        X,
+        Y,
+        cfg,
+        storage,
+        space=space,
+        out=out,
+        robot=ds.meta.robot,
+        on_trial=on_trial,
+        base=physics,
     )

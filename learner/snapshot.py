@@ -65,8 +65,8 @@ def snapshot_to_bytes(model: ErrorModel, extra_meta: dict | None = None) -> byte
         tensors["sensor_tool"] = torch.as_tensor(desc.tool)
     base = model.base
     if base is not None:
-        tensors["base_T_0_B"] = torch.as_tensor(np.asarray(base.T_0_B, dtype=np.float64))
-        tensors["base_tool"] = torch.as_tensor(base.description.tool)
+        tensors["base_T_0_B"] = torch.as_tensor(np.array(base.T_0_B, dtype=np.float64))
+        tensors["base_tool"] = torch.as_tensor(np.array(base.description.tool))  # never shared
     meta = {
         "schema": SCHEMA,
         "version": SCHEMA_VERSION,

@@ -26,12 +26,17 @@ from learner.base import (
     reidentify_frames,
 )
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
-from learner.continual import ContinualLearner, UpdateMetrics, state_from_bytes, state_to_bytes
+from learner.continual import (
+    ContinualLearner,
+    UpdateMetrics,
+    state_path,
+    state_to_bytes,
+)
 from learner.features import FeatureSpec, dataset_feature_spec, dataset_features, dataset_labels
 from learner.metrics import AccuracyReport, accuracy_report
 from learner.model import ErrorModel, TrainReport
 from learner.plots import write_learning_curve
-from learner.snapshot import atomic_write_bytes, load_snapshot, save_snapshot
+from learner.snapshot import atomic_write_bytes, save_snapshot
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -206,22 +211,6 @@ def continual_on_dataset(
         title = f"{cfg.strategy}: N_m={cfg.memory}, n_B={cfg.batch}"
         write_learning_curve(curve, curve_paths(out), title)
     return result
-
-
-def state_path(model_path: str | Path) -> Path:
-    """The continual state (memory, both models, counters) written beside a model file."""
-    stem = Path(model_path).with_suffix("")
-    return stem.with_name(stem.name + ".state.safetensors")
-
-
-def load_learner(model_path: str | Path, cfg: ContinualConfig) -> ContinualLearner:
-    """A learner that goes on from a model file: from its state beside it (memory included)
-    when there is one, else from the snapshot alone with an empty memory."""
-    model = load_snapshot(model_path)
-    learner = ContinualLearner(model, cfg)
-    if state_path(model_path).is_file():
-        learner.load_state(state_from_bytes(state_path(model_path).read_bytes()))
-    return learner
 
 
 def curve_paths(out: str | Path) -> tuple[Path, Path]:

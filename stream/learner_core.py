@@ -26,8 +26,9 @@ from safetensors.numpy import save as np_save
 from kinematics.description import RobotDescription
 from kinematics.errors import ConfigError, RobocalError, SnapshotError
 from kinematics.model import RobotModel
+from learner.base import check_same_robot, reidentify_frames
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
-from learner.continual import ContinualLearner, state_from_bytes, state_to_bytes
+from learner.continual import ContinualLearner, load_learner, state_from_bytes, state_to_bytes
 from learner.features import FeatureSpec, dataset_features, dataset_labels, feature_spec
 from learner.model import ErrorModel
 from learner.snapshot import snapshot_from_bytes, snapshot_to_bytes
@@ -49,6 +50,9 @@ class LearnerStageConfig:
     seed: int = 0
     use_secondary: bool = True
     use_temperatures: bool = True
+    #: A model file to go on from (with its replay memory when its state is beside it); its
+    #: frames are re-identified from the first batch, as ``robocal continual --from`` does.
+    start_from: str | None = None
 
     def __post_init__(self) -> None:
         if not (isinstance(self.holdout_every, int) and self.holdout_every >= 2):
@@ -78,6 +82,9 @@ class LearnerCore:
         self.learner: ContinualLearner | None = None
         self.test_x: np.ndarray | None = None
         self.test_y = np.empty((0, 6))
+        self._reidentify = False
+        if cfg.start_from:
+            self._start_from(cfg.start_from)
         self.last_seq = -1
         self.n_points = 0
         self._age: dict[bytes, int] = {}
@@ -108,6 +115,10 @@ class LearnerCore:
         X, Y = self.features(batch)
         if not (np.isfinite(X).all() and np.isfinite(Y).all()):
             raise RejectedMessageError("non_finite", f"batch {batch.seq}: non-finite features")
+        if self._reidentify:  # a carried model's first batch: this cell's frames
+            spec = self.learner.model.spec
+            self.learner.rebase(reidentify_frames(self.learner.base, spec, X, Y))
+            self._reidentify = False
         if self.learner is None:
             model = ErrorModel.create(
                 self.spec_for(batch), self.cfg.model, self.cfg.train, self.cfg.seed, self.desc.name
@@ -191,6 +202,14 @@ class LearnerCore:
         os.replace(tmp, path)
         return path
 
+    def _start_from(self, path: str) -> None:
+        """Go on from a model file of this robot (ConfigError naming a mismatch)."""
+        learner = load_learner(path, self.cfg.continual)
+        check_same_robot(learner.model.spec.description, self.desc, f"model {path}")
+        self.learner, self._reidentify = learner, True
+        self.robot = RobotModel(learner.model.spec.description)  # labels against its nominal
+        self.test_x = np.empty((0, learner.model.spec.n_features))
+
     def restore(self, path: str | Path) -> None:
         """Continue from a :meth:`checkpoint` file."""
         path = Path(path)
@@ -207,6 +226,8 @@ class LearnerCore:
         model = snapshot_from_bytes(state["model"])
         self.learner = ContinualLearner(model, self.cfg.continual)
         self.learner.load_state(state)
+        self.robot = RobotModel(model.spec.description or self.desc)
+        self._reidentify = False  # the checkpoint is of this cell already
         self.test_x, self.test_y = arrays["test_x"], arrays["test_y"]
         self.last_seq, self.n_points = int(meta["last_seq"]), int(meta["n_points"])
         self._age = {

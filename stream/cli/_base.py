@@ -10,6 +10,8 @@ from typing import Any
 
 import numpy as np
 
+from learner.config import BASE_KINDS, DEFAULT_BASE
+
 
 class CLIUsageError(Exception):
     """Arguments that parse but make no sense together."""
@@ -48,3 +50,13 @@ def _jsonable(value: Any) -> Any:
     if isinstance(value, np.generic):
         return value.item()
     raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
+
+
+def add_base_argument(parser: argparse.ArgumentParser, default: str = DEFAULT_BASE) -> None:
+    """``--base``: the physics base whose residual the network learns."""
+    parser.add_argument(
+        "--base",
+        default=default,
+        help=f"physics base the network learns the residual of: {', '.join(BASE_KINDS)} or a "
+        f"model file from `robocal calibrate`/`robocal gap` (.toml); default {default}",
+    )

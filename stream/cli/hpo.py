@@ -17,7 +17,7 @@ from kinematics.dataset import read_dataset
 from learner.hpo import HpoConfig, run_hpo
 from learner.hpo_space import SearchSpace, load_space
 from learner.hpo_study import Progress
-from stream.cli._base import Command, add_json_flag, emit
+from stream.cli._base import Command, add_base_argument, add_json_flag, emit
 
 
 class HpoCommand(Command):
@@ -42,6 +42,7 @@ class HpoCommand(Command):
         parser.add_argument("--min-epochs", type=int, default=10, help="Hyperband min resource")
         parser.add_argument("--top", type=int, default=10, help="select among the N best trials")
         parser.add_argument("--no-prune", action="store_true", help="NopPruner instead")
+        add_base_argument(parser)
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
@@ -69,7 +70,9 @@ class HpoCommand(Command):
                     bar.set_postfix(best=f"{p.best_value:.4g}", refresh=False)
                 bar.refresh()
 
-            result = run_hpo(ds, cfg, storage, space=space, out=out, on_trial=on_trial)
+            result = run_hpo(
+                ds, cfg, storage, space=space, out=out, on_trial=on_trial, base=args.base
+            )
         s = result.selected
         text = (
             f"study {result.study!r} in {result.storage}: {result.complete} complete, "

@@ -15,8 +15,8 @@ import sys
 from tqdm import tqdm
 
 from kinematics.dataset import read_dataset
-from learner.base import DEFAULT_BASE
-from learner.config import BASE_KINDS, STRATEGIES, ContinualConfig, TrainConfig
+from learner.config import STRATEGIES, ContinualConfig, TrainConfig
+from learner.continual import load_learner
 from learner.experiment import StudyConfig, run_paper_study
 from learner.model import ErrorModel
 from learner.snapshot import load_snapshot
@@ -24,10 +24,9 @@ from learner.workflow import (
     continual_on_dataset,
     curve_paths,
     evaluate_on_dataset,
-    load_learner,
     train_on_dataset,
 )
-from stream.cli._base import Command, add_json_flag, emit
+from stream.cli._base import Command, add_base_argument, add_json_flag, emit
 
 
 def _report_text(title: str, r: dict) -> str:
@@ -46,15 +45,6 @@ def _add_split(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="split, weights and batch order")
 
 
-def _add_base(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--base",
-        default=DEFAULT_BASE,
-        help=f"physics base the network learns the residual of: {', '.join(BASE_KINDS)} or a "
-        f"model file from `robocal calibrate`/`robocal gap` (.toml); default {DEFAULT_BASE}",
-    )
-
-
 class Train(Command):
     name = "train"
     help = "batch-train an evidential error model on a dataset and report its test accuracy"
@@ -63,7 +53,7 @@ class Train(Command):
         _add_split(parser)
         parser.add_argument("--out", required=True, help="model snapshot to write (.safetensors)")
         parser.add_argument("--max-epochs", type=int, default=TrainConfig().max_epochs)
-        _add_base(parser)
+        add_base_argument(parser)
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
@@ -118,7 +108,7 @@ class Continual(Command):
             help="go on from this model (with its replay memory when its .state.safetensors is "
             "beside it); its frames are re-identified from the first --init points",
         )
-        _add_base(parser)
+        add_base_argument(parser, ContinualConfig().base)
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:

@@ -40,6 +40,9 @@ def test_auto_falls_back_to_nominal_when_the_points_cannot_identify(points):
     p = points
     base = identify_base("auto", p.spec, p.X[:5], p.Y[:5])
     assert base.kind == "auto" and base.note.startswith("nominal:")
+    model = ErrorModel.create(p.spec, ModelConfig(hidden_layers=1, neurons=8), TrainConfig(), 0)
+    model.base = base  # shares the nominal description's tool: the snapshot still writes
+    assert snapshot_from_bytes(snapshot_to_bytes(model)).base.note == base.note
     with pytest.raises(ConfigError, match="base must be one of"):
         identify_base("magic", p.spec, p.X, p.Y)
 

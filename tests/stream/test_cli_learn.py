@@ -1,5 +1,6 @@
 import json
 
+import numpy as np
 import pytest
 import torch
 
@@ -88,3 +89,59 @@ def test_experiment_quick(data_file, tmp_path, capsys, monkeypatch):
 def test_bad_input_exits_2(tmp_path, capsys):
     assert main(["evaluate", "--model", str(tmp_path / "no.safetensors"), "--data", "x.csv"]) == 2
     assert "robocal: error:" in capsys.readouterr().err
+
+
+def test_continual_goes_on_from_a_model_with_its_memory(data_file, tmp_path, capsys):
+    first, second = tmp_path / "day1.safetensors", tmp_path / "day2.safetensors"
+    argv = ["train", "--data", str(data_file), "--out", str(first), "--max-epochs", "3"]
+    assert main(argv) == 0
+    assert (tmp_path / "day1.state.safetensors").is_file()  # the memory travels beside it
+    capsys.readouterr()
+    argv = [
+        "continual",
+        "--from",
+        str(first),
+        "--data",
+        str(data_file),
+        "--test-fraction",
+        "0",
+        "--batch",
+        "40",
+        "--init",
+        "40",
+        "--epochs-per-update",
+        "2",
+        "--out",
+        str(second),
+        "--json",
+    ]
+    assert main(argv) == 0
+    out = _json(capsys)
+    assert out["updates"] == 4  # all 160 points streamed, no first model trained again
+    assert out["base"]["kind"] == "geometric" and out["test"] == {}
+    model = load_snapshot(second)
+    assert model.base_kind == "geometric" and model.is_fitted
+
+
+def test_a_model_or_base_of_another_robot_stops_with_one_line(data_file, tmp_path, capsys):
+    from kinematics.dataset import read_dataset, write_dataset
+    from kinematics.description import load_description
+    from kinematics.gap.model_file import ModelFile, model_to_toml
+
+    base = tmp_path / "ur10.toml"
+    ur10 = ModelFile(description=load_description("ur10"), T_W_0=np.eye(4), effects=())
+    base.write_text(model_to_toml(ur10))
+    argv = ["train", "--data", str(data_file), "--out", str(tmp_path / "m.safetensors")]
+    assert main([*argv, "--base", str(base)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]  # after the progress bar
+    assert err.startswith("robocal: ") and "is for robot 'ur10'" in err
+    model = tmp_path / "m.safetensors"
+    assert main([*argv, "--max-epochs", "2"]) == 0
+    ds = read_dataset(data_file)
+    fewer = tmp_path / "no_temps.parquet"
+    write_dataset(type(ds)(ds.table.drop(columns=["temp_link2"]), ds.meta), fewer)
+    capsys.readouterr()
+    argv = ["continual", "--from", str(model), "--data", str(fewer), "--out", str(tmp_path / "x")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("robocal: ") and "temp_link2" in err
