@@ -84,6 +84,7 @@ class RobotDescription:
     convention: str = "dh_hayati"
     tool: np.ndarray = field(default_factory=lambda: np.eye(4))
     sensors: SensorRanges = field(default_factory=SensorRanges)
+    temperature_links: tuple[tuple[str, tuple[int, ...]], ...] = ()
 
     def __post_init__(self) -> None:
         if self.convention != "dh_hayati":
@@ -98,6 +99,21 @@ class RobotDescription:
         if tool.shape != (4, 4) or not np.all(np.isfinite(tool)):
             raise DescriptionError(f"tool must be a finite 4x4 transform, got shape {tool.shape}")
         object.__setattr__(self, "tool", tool)
+        for channel, links in self.temperature_links:
+            bad = [k for k in links if not 1 <= k <= len(self.joints)]
+            if not links or bad:
+                raise DescriptionError(
+                    f"sensors.temperature_links.{channel}: links must be in 1..{len(self.joints)}"
+                    f", got {list(links)}"
+                )
+
+    def link_channels(self) -> tuple[tuple[str, ...], ...]:
+        """Per joint (its ``a_i``, ``d_i``) the temperature channels that ``[sensors]`` maps to
+        it (names without ``temp_``); empty tuples without a map."""
+        return tuple(
+            tuple(c for c, links in self.temperature_links if i in links)
+            for i in range(1, self.n_joints + 1)
+        )
 
     @property
     def n_joints(self) -> int:
@@ -153,11 +169,31 @@ def _description_from_urdf_entry(path: Path, raw: dict) -> RobotDescription:
     desc = description_from_urdf(
         path.parent / raw["urdf"], raw.get("tip_link"), name=raw.get("name")
     )
+    ranges, links = _sensors(raw)
     return replace(
-        desc,
-        coupling=str(raw.get("coupling", "none")),
-        sensors=SensorRanges(**raw.get("sensors", {})),
+        desc, coupling=str(raw.get("coupling", "none")), sensors=ranges, temperature_links=links
     )
+
+
+def _sensors(raw: dict) -> tuple[SensorRanges, tuple[tuple[str, tuple[int, ...]], ...]]:
+    """The ``[sensors]`` table: declared ranges and the optional ``temperature_links`` map
+    (channel name, with or without ``temp_``, -> a link number or a list of them)."""
+    table = dict(raw.get("sensors", {}))
+    links_raw = table.pop("temperature_links", {})
+    if not isinstance(links_raw, dict):
+        raise DescriptionError("sensors.temperature_links must be a table of channel = link(s)")
+    links = []
+    for channel, value in links_raw.items():
+        values = value if isinstance(value, list) else [value]
+        if not all(isinstance(v, int) and not isinstance(v, bool) for v in values):
+            raise DescriptionError(
+                f"sensors.temperature_links.{channel}: links are joint numbers, got {value!r}"
+            )
+        links.append((str(channel).removeprefix("temp_"), tuple(int(v) for v in values)))
+    try:
+        return SensorRanges(**table), tuple(links)
+    except TypeError as exc:
+        raise DescriptionError(f"sensors: {exc}") from None
 
 
 def description_from_dict(raw: dict) -> RobotDescription:
@@ -194,7 +230,8 @@ def description_from_dict(raw: dict) -> RobotDescription:
         coupling=str(raw.get("coupling", "none")),
         convention=str(raw.get("convention", "dh_hayati")),
         tool=tool,
-        sensors=SensorRanges(**raw.get("sensors", {})),
+        sensors=_sensors(raw)[0],
+        temperature_links=_sensors(raw)[1],
     )
 
 
@@ -225,4 +262,14 @@ def description_to_toml(desc: RobotDescription) -> str:
         f"deflection_max_rad = {desc.sensors.deflection_max_rad!r}",
         "",
     ]
+    if desc.temperature_links:
+        lines += ["[sensors.temperature_links]"]
+        lines += [f"{_key(c)} = {list(links)!r}" for c, links in desc.temperature_links]
+        lines += [""]
     return "\n".join(lines)
+
+
+def _key(name: str) -> str:
+    """A TOML key: bare when it can be, else quoted."""
+    bare = name and all(ch.isascii() and (ch.isalnum() or ch in "_-") for ch in name)
+    return name if bare else '"' + name.replace("\\", "\\\\").replace('"', '\\"') + '"'

@@ -72,6 +72,11 @@ class Conditions:
     def n_points(self) -> int:
         return int(np.shape(self.q)[0])
 
+    def has_loads(self) -> bool:
+        """Whether a payload or a tool force acts at any point."""
+        force = self.tool_force_n is not None and np.any(np.asarray(self.tool_force_n) != 0)
+        return bool(force or np.any(self.payload_per_point() != 0))
+
     def payload_per_point(self) -> np.ndarray:
         """The payload (N,) kg, whether given as a scalar or per point."""
         return np.broadcast_to(np.asarray(self.payload_kg, dtype=float), (self.n_points,))
@@ -120,6 +125,10 @@ class Effect(abc.ABC):
     def perturbation(self, model: RobotModel, params: np.ndarray, cond: Conditions) -> Perturbation:
         """The change this effect makes at each point for parameters ``params``."""
 
+    def needs(self, model: RobotModel, cond: Conditions) -> str | None:
+        """What this effect needs that the robot or the data lacks (one phrase), else None."""
+        return None
+
     def zero_parameters(self, desc: RobotDescription) -> np.ndarray:
         """Parameters at which the effect is absent (zeros unless a member says otherwise)."""
         return np.zeros(len(self.parameter_names(desc)))
@@ -166,6 +175,9 @@ class Restricted(Effect):
 
     def options(self) -> dict:
         return self.effect.options()
+
+    def needs(self, model: RobotModel, cond: Conditions) -> str | None:
+        return self.effect.needs(model, cond)
 
     def perturbation(self, model: RobotModel, params: np.ndarray, cond: Conditions) -> Perturbation:
         return self.effect.perturbation(model, self.full(params), cond)

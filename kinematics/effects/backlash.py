@@ -12,7 +12,7 @@ import numpy as np
 
 from kinematics.description import RobotDescription
 from kinematics.effects._base import Conditions, Effect, Perturbation, ctrl_to_dh_delta
-from kinematics.effects.joint_compliance import actuator_torque
+from kinematics.effects.joint_compliance import actuator_torque, torque_need
 from kinematics.errors import ConfigError
 from kinematics.model import RobotModel
 
@@ -33,6 +33,13 @@ class Backlash(Effect):
 
     def options(self) -> dict:
         return {"sign_from": self.sign_from}
+
+    def needs(self, model: RobotModel, cond: Conditions) -> str | None:
+        if self.sign_from == "torque":
+            return torque_need(model, cond)
+        if cond.approach is None:
+            return "needs approach directions (approach1.. columns, or rows in visiting order)"
+        return None
 
     def parameter_names(self, desc: RobotDescription) -> tuple[str, ...]:
         return tuple(f"half_play{i}_rad" for i in range(1, desc.n_joints + 1))

@@ -35,6 +35,9 @@ def actuator_torque(
         rows = np.flatnonzero(payload == mass)
         force = None if cond.tool_force_n is None else np.asarray(cond.tool_force_n)[rows]
         tau_dh[rows] = model.gravity_torque(q[rows], payload_kg=float(mass), tool_force_n=force)
+    # Rounding noise (a joint whose axis carries no load, e.g. J6 under a centred payload) is
+    # zero torque, not a column of 1e-13 N·m that a fit could scale up without limit.
+    tau_dh[np.abs(tau_dh) < 1e-9 * max(float(np.abs(tau_dh).max(initial=0.0)), 1.0)] = 0.0
     C = coupling_matrix(desc)
     tau = tau_dh @ C
     if any(balancer):
@@ -42,6 +45,16 @@ def actuator_torque(
             model.gravity_torque(q) @ C
         )
     return tau
+
+
+def torque_need(model: RobotModel, cond: Conditions) -> str | None:
+    """Why holding torques cannot be computed (no link masses, payload or tool force), or None."""
+    if any(j.mass_kg > 0 for j in model.description.joints) or cond.has_loads():
+        return None
+    return (
+        "needs holding torques: link masses (mass_kg in the description), a payload "
+        "(payload_kg) or a tool force (force_x_n..); this robot and dataset give none"
+    )
 
 
 def compliance_deflection(
@@ -63,6 +76,9 @@ class JointCompliance(Effect):
 
     def options(self) -> dict:
         return {"balancer": list(self.balancer)}
+
+    def needs(self, model: RobotModel, cond: Conditions) -> str | None:
+        return torque_need(model, cond)
 
     def parameter_names(self, desc: RobotDescription) -> tuple[str, ...]:
         return tuple(f"c{i}_rad_per_Nm" for i in range(1, desc.n_joints + 1))

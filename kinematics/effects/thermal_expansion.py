@@ -5,6 +5,12 @@ For joint ``i``: ``da_i = a_i k_i (T_i - T_ref)`` and ``dd_i = d_i k_i (T_i - T_
 ``link_sensors`` maps to link ``i``. A robot with one thermometer lets it drive every link
 (:meth:`ThermalExpansion.single`, and the fallback when the mapped sensors are absent and there
 is exactly one temperature). Parameters ``k{i}_per_K``; linear, zero = no effect.
+
+With ``terms`` instead, each term ``(link, channels)`` is one parameter: joint ``link``'s
+lengths grow by ``k`` times the mean of ``channels`` above the reference. A description's
+``[sensors]`` map gives one term per mapped link; without a map the gap workflow forms the
+terms from the data (:mod:`kinematics.gap.thermal`), one channel per term, named
+``k{link}_{channel}_per_K``.
 """
 
 from __future__ import annotations
@@ -56,6 +62,7 @@ class ThermalExpansion(Effect):
         self,
         link_sensors: tuple[tuple[str, ...], ...] = DEFAULT_LINK_SENSORS,
         t_ref_c: float = 20.0,
+        terms: tuple[tuple[int, tuple[str, ...]], ...] = (),
     ) -> None:
         if not np.isfinite(t_ref_c):
             raise ConfigError(f"thermal_expansion.t_ref_c must be finite, got {t_ref_c}")
@@ -63,6 +70,9 @@ class ThermalExpansion(Effect):
             raise ConfigError(f"every link needs at least one sensor, got {link_sensors}")
         self.link_sensors = tuple(tuple(names) for names in link_sensors)
         self.t_ref_c = float(t_ref_c)
+        self.terms = tuple((int(link), tuple(chs)) for link, chs in terms)
+        if any(link < 1 or not chs for link, chs in self.terms):
+            raise ConfigError(f"thermal_expansion.terms need links >= 1 and channels, got {terms}")
 
     @classmethod
     def single(cls, sensor: str, n_joints: int = 6, t_ref_c: float = 20.0) -> ThermalExpansion:
@@ -70,10 +80,34 @@ class ThermalExpansion(Effect):
         return cls(link_sensors=((sensor,),) * n_joints, t_ref_c=t_ref_c)
 
     def options(self) -> dict:
+        if self.terms:
+            return {"terms": [[k, list(c)] for k, c in self.terms], "t_ref_c": self.t_ref_c}
         return {"link_sensors": [list(s) for s in self.link_sensors], "t_ref_c": self.t_ref_c}
 
+    def needs(self, model: RobotModel, cond: Conditions) -> str | None:
+        if cond.temperatures is None or not cond.temperature_names:
+            return "needs temperature channels (temp_<name> columns); the dataset has none"
+        return None
+
     def parameter_names(self, desc: RobotDescription) -> tuple[str, ...]:
+        if self.terms:
+            return tuple(
+                f"k{k}_{c[0]}_per_K" if len(c) == 1 else f"k{k}_per_K" for k, c in self.terms
+            )
         return tuple(f"k{i}_per_K" for i in range(1, desc.n_joints + 1))
+
+    def term_temperatures(self, cond: Conditions) -> np.ndarray:
+        """Temperatures (N, terms) °C of each term: the mean of its channels."""
+        if cond.temperatures is None:
+            raise ConfigError("thermal_expansion needs conditions.temperatures, got None")
+        names = tuple(cond.temperature_names)
+        missing = sorted({c for _, chs in self.terms for c in chs} - set(names))
+        if missing:
+            raise ConfigError(f"thermal_expansion needs channel(s) {missing}, got {list(names)}")
+        temps = np.asarray(cond.temperatures, dtype=float)
+        return np.stack(
+            [temps[:, [names.index(c) for c in chs]].mean(axis=1) for _, chs in self.terms], 1
+        )
 
     def link_temperatures(self, cond: Conditions, n_joints: int) -> np.ndarray:
         """Temperatures (N, n) °C of each link, from the mapped sensors (or the single one)."""
@@ -102,7 +136,14 @@ class ThermalExpansion(Effect):
         desc = model.description
         params = self.checked(desc, params)
         out = Perturbation.zero(cond.n_points, desc.n_joints)
-        if np.any(params != 0):
+        if self.terms and np.any(params != 0):
+            links = np.array([k - 1 for k, _ in self.terms])
+            if links.max() >= desc.n_joints:
+                raise ConfigError(f"thermal_expansion.terms name link {links.max() + 1}")
+            grow = params[None] * (self.term_temperatures(cond) - self.t_ref_c)
+            lengths = np.array([[j.a_m, j.d_m] for j in desc.joints])[links]
+            np.add.at(out.ddh[:, :, :2], (slice(None), links), grow[:, :, None] * lengths[None])
+        elif np.any(params != 0):
             strain = params[None] * (self.link_temperatures(cond, desc.n_joints) - self.t_ref_c)
             lengths = np.array([[j.a_m, j.d_m] for j in desc.joints])
             out.ddh[:, :, :2] = strain[:, :, None] * lengths[None]

@@ -28,6 +28,11 @@ class TrackerDrift(Effect):
 
     name = "tracker_drift"
 
+    def needs(self, model: RobotModel, cond: Conditions) -> str | None:
+        if np.ptp(np.asarray(cond.t, dtype=float)) <= 0:
+            return "needs time stamps that vary (column t)"
+        return None
+
     def parameter_names(self, desc: RobotDescription) -> tuple[str, ...]:
         return PARAMETER_NAMES
 

@@ -50,7 +50,7 @@ class CandidateScore:
         return out
 
 
-def _untestable(name: str, n_params: int, note: str, absorbed=()) -> CandidateScore:
+def untestable(name: str, n_params: int, note: str, absorbed=()) -> CandidateScore:
     return CandidateScore(
         effect=name,
         n_parameters=n_params,
@@ -105,7 +105,7 @@ def score_candidate(
     try:
         Jc = jacobian(model, obs, [*blocks, (effect, effect.zero_parameters(desc))], w, len(blocks))
     except RobocalError as exc:
-        return _untestable(name, len(names), f"not testable with this dataset: {exc}")
+        return untestable(name, len(names), f"not testable with this dataset: {exc}")
     norms = np.linalg.norm(Jc, axis=0)
     if current_jac.shape[1]:
         Q, _ = np.linalg.qr(current_jac)
@@ -118,9 +118,9 @@ def score_candidate(
     live = np.flatnonzero(kept_norm >= absorb_rtol)
     absorbed = tuple(names[i] for i in np.flatnonzero((kept_norm < absorb_rtol) & (norms > 0)))
     if not np.any(norms > 0):
-        return _untestable(name, len(names), "not excited by these poses and conditions")
+        return untestable(name, len(names), "not excited by these poses and conditions")
     if live.size == 0:
-        return _untestable(
+        return untestable(
             name,
             len(names),
             "cannot be told apart from the current model with these poses",
@@ -169,7 +169,7 @@ def holm(p_values: list[float]) -> list[float]:
 
 
 def score_candidates(
-    effects: list[Effect],
+    effects: list[Effect | CandidateScore],
     model: RobotModel,
     obs: Observations,
     blocks: list[Block],
@@ -178,9 +178,14 @@ def score_candidates(
     w: float,
     level: float = 0.01,
 ) -> list[CandidateScore]:
-    """Every candidate scored, Holm-corrected at ``level``; significant ones also need a
-    negative change of BIC."""
-    scores = [score_candidate(e, model, obs, blocks, current_jac, residual, w) for e in effects]
+    """Every candidate scored (one given as a score is taken as it is), Holm-corrected at
+    ``level``; significant ones also need a negative change of BIC."""
+    scores = [
+        e
+        if isinstance(e, CandidateScore)
+        else score_candidate(e, model, obs, blocks, current_jac, residual, w)
+        for e in effects
+    ]
     adjusted = holm([s.p_value for s in scores]) if scores else []
     out = []
     for s, p in zip(scores, adjusted, strict=True):

@@ -39,6 +39,7 @@ class EffectEntry:
     options: dict
     parameters: dict[str, float]
     std: dict[str, float]
+    identified: bool = True
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -73,7 +74,14 @@ def _value(v) -> str:
 
 
 def _inline(d: dict) -> str:
-    return "{ " + ", ".join(f"{k} = {_value(v)}" for k, v in d.items()) + " }" if d else "{}"
+    return "{ " + ", ".join(f"{_key(k)} = {_value(v)}" for k, v in d.items()) + " }" if d else "{}"
+
+
+def _key(name: str) -> str:
+    """A TOML key: bare when it can be (letters, digits, ``_``, ``-``), else quoted."""
+    if name and all(c.isascii() and (c.isalnum() or c in "_-") for c in name):
+        return name
+    return '"' + name.replace("\\", "\\\\").replace('"', '\\"') + '"'
 
 
 def model_to_toml(model: ModelFile) -> str:
@@ -86,6 +94,7 @@ def model_to_toml(model: ModelFile) -> str:
             "[[effect]]",
             f'name = "{e.name}"',
             f"options = {_inline(e.options)}",
+            *([] if e.identified else ["identified = false"]),
             f"parameters = {_inline({k: float(v) for k, v in e.parameters.items()})}",
             f"std = {_inline({k: float(v) for k, v in e.std.items()})}",
         ]
@@ -110,6 +119,7 @@ def load_model_file(path: str | Path) -> ModelFile:
                 options=dict(row.get("options", {})),
                 parameters={k: float(v) for k, v in row.get("parameters", {}).items()},
                 std={k: float(v) for k, v in row.get("std", {}).items()},
+                identified=bool(row.get("identified", True)),
             )
             for row in raw.get("effect", [])
         )

@@ -71,7 +71,10 @@ def markdown_text(result: GapResult, plot_names: list[str] = ()) -> str:
     for e in result.named:
         ev = e.evidence
         lines += [
-            f"### {e.effect}",
+            f"### {e.effect}" if e.identified else f"### unnamed correction ({e.effect} shape)",
+            "",
+            f"{e.message[0].upper()}{e.message[1:]}; parameter std inflation {e.inflation:.3g}, "
+            f"largest |value| / std {e.value_to_std:.3g}.",
             "",
             f"Explains {100 * ev.explained_share:.1f}% of the residual; F = {ev.f_stat:.1f}, "
             f"Holm p = {ev.p_holm:.2e}, dBIC = {ev.delta_bic:.1f}; "
@@ -92,6 +95,8 @@ def markdown_text(result: GapResult, plot_names: list[str] = ()) -> str:
             f"| {c.effect} | {100 * c.explained_share:.2f}% | {c.f_stat:.2f} | "
             f"{c.p_holm:.3g} | {c.delta_bic:.1f} | {c.note} |"
         )
+    lines += ["", "## Candidates not formed", ""]
+    lines += [f"- {name}: {why}" for name, why in result.not_formed] or ["None."]
     lines += ["", "## Regions (held-out), before and after", ""]
     lines += ["| family | region | n | before mm | after mm | floor ratio after | flagged after |"]
     lines.append("|---|---|---|---|---|---|---|")

@@ -33,17 +33,14 @@ from kinematics.calibration import (
 )
 from kinematics.dataset import Dataset
 from kinematics.description import RobotDescription
-from kinematics.effects import EFFECTS, Restricted
+from kinematics.effects import EFFECTS, Effect, Restricted
 from kinematics.errors import ConfigError
-from kinematics.gap.candidates import (
-    CandidateScore,
-    best,
-    make_effect,
-    score_candidates,
-)
+from kinematics.gap.candidates import CandidateScore, best, score_candidates
 from kinematics.gap.conditions import Observations, cell_description, observations_from_dataset
-from kinematics.gap.fitting import Block, FitResult, fit_effects, predicted_poses
+from kinematics.gap.fitting import Block, fit_effects, predicted_poses
+from kinematics.gap.formed import candidate_effects
 from kinematics.gap.model_file import EffectEntry, ModelFile
+from kinematics.gap.naming import NamedEffect, named_effect
 from kinematics.gap.regions import (
     NoiseFloor,
     RegionStat,
@@ -66,6 +63,8 @@ class GapConfig:
     seed: int = 0
     level: float = 0.01
     max_effects: int = 8
+    max_inflation: float = 100.0
+    min_value_to_std: float = 3.0
     effect_options: dict[str, dict] | None = None
     calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
 
@@ -78,6 +77,11 @@ class GapConfig:
             raise ConfigError(f"gap.level must be in (0, 1), got {self.level}")
         if self.max_effects < 0:
             raise ConfigError(f"gap.max_effects must be >= 0, got {self.max_effects}")
+        if not self.max_inflation >= 1 or not self.min_value_to_std > 0:
+            raise ConfigError(
+                "gap.max_inflation must be >= 1 and gap.min_value_to_std > 0, got "
+                f"{self.max_inflation}, {self.min_value_to_std}"
+            )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -88,29 +92,6 @@ class Stage:
     heldout: ResidualStats
     regions: list[RegionStat]
     residual_m: np.ndarray
-
-
-@dataclass(frozen=True, kw_only=True)
-class NamedEffect:
-    """An identified effect: parameter values and uncertainties (SI), the evidence, and the
-    condition number of the joint refit (unit-norm columns): a large one means the values
-    trade off against the rest of the model and are not individually physical."""
-
-    effect: str
-    parameters: dict[str, float]
-    std: dict[str, float]
-    evidence: CandidateScore
-    candidates: list[CandidateScore]
-    fit_condition_number: float
-
-    def to_dict(self) -> dict:
-        return {
-            "effect": self.effect,
-            "parameters": self.parameters,
-            "std": self.std,
-            "evidence": self.evidence.to_dict(),
-            "fit_condition_number": self.fit_condition_number,
-        }
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -127,6 +108,7 @@ class GapResult:
     stages: list[Stage]
     named: list[NamedEffect]
     last_candidates: list[CandidateScore]
+    not_formed: tuple[tuple[str, str], ...]
     consistent_with_floor: bool
     notes: tuple[str, ...]
     heldout_xyz_m: np.ndarray
@@ -135,13 +117,15 @@ class GapResult:
     def model_file(self) -> ModelFile:
         """The updated model: folded description and ``T_W_0`` plus the other effects."""
         entries = []
+        identified = {e.effect: e.identified for e in self.named}
         for (effect, p), std in zip(self.blocks, self.stds, strict=True):
             if isinstance(effect, GeometricFrames) or effect.name in FOLDED:
                 continue
             entries.append(
                 EffectEntry(
                     name=effect.name,
-                    options=dict(self.options.get(effect.name, {})),
+                    identified=identified.get(effect.name, True),
+                    options=effect.options(),
                     parameters=_named_values(
                         effect.effect.parameter_names(self.description), effect.full(p)
                     ),
@@ -156,8 +140,10 @@ class GapResult:
             "robot": self.robot,
             "start": self.start,
             "disagreement": [r.to_dict() for r in before.regions if r.significant],
-            "named_effects": [e.to_dict() for e in self.named],
+            "named_effects": [e.to_dict() for e in self.named if e.identified],
+            "unnamed_corrections": [e.to_dict() for e in self.named if not e.identified],
             "candidates_last_round": [c.to_dict() for c in self.last_candidates],
+            "candidates_not_formed": [{"effect": n, "why": w} for n, w in self.not_formed],
             "before": before.heldout.to_dict(),
             "after": after.heldout.to_dict(),
             "stages": [
@@ -233,6 +219,7 @@ def _run_gap(desc, ds, config, progress) -> GapResult:
     included = set(STARTS[config.start])
     named: list[NamedEffect] = []
     scores: list[CandidateScore] = []
+    not_formed: list[tuple[str, str]] = []
     stop = f"stopped after max_effects = {config.max_effects} effects"
     while len(named) < config.max_effects:
         candidates = [n for n in EFFECTS if n not in included]
@@ -241,8 +228,13 @@ def _run_gap(desc, ds, config, progress) -> GapResult:
             break
         say(f"scoring {len(candidates)} candidates")
         r = _weighted(fit.residual, fit.rotation_weight_m)
+        state = (blocks, fit.jac, r, fit.rotation_weight_m)
+        formed, not_formed = candidate_effects(
+            candidates, options, model, obs_tr, state, config.level
+        )
+        by_name = {e.name if isinstance(e, Effect) else e.effect: e for e in formed}
         scores = score_candidates(
-            [make_effect(n, options.get(n)) for n in candidates],
+            formed,
             model,
             obs_tr,
             blocks,
@@ -256,7 +248,7 @@ def _run_gap(desc, ds, config, progress) -> GapResult:
             stop = "no candidate of the vocabulary explains the residual significantly"
             break
         say(f"adding {top.effect}")
-        new = Restricted(make_effect(top.effect, options.get(top.effect)), desc, top.kept_index)
+        new = Restricted(by_name[top.effect], desc, top.kept_index)
         effects = [*(e for e, _ in blocks), new]
         start = [*(p for _, p in blocks), np.zeros(len(top.kept_index))]
         fit = fit_effects(
@@ -267,8 +259,9 @@ def _run_gap(desc, ds, config, progress) -> GapResult:
         )
         blocks = fit.blocks(effects)
         included.add(top.effect)
-        named.append(_named(new, fit, top, scores))
-        stages.append(_stage(f"+ {top.effect}", model, obs_te, blocks, labels, floor, config.level))
+        named.append(named_effect(top, fit, scores, config.max_inflation, config.min_value_to_std))
+        label = f"+ {top.effect}" if named[-1].identified else f"+ unnamed ({top.effect} shape)"
+        stages.append(_stage(label, model, obs_te, blocks, labels, floor, config.level))
     final = stages[-1].regions[0]
     consistent = not final.significant
     if not consistent:
@@ -285,6 +278,7 @@ def _run_gap(desc, ds, config, progress) -> GapResult:
         stages=stages,
         named=named,
         last_candidates=scores,
+        not_formed=tuple(not_formed),
         consistent_with_floor=consistent,
         notes=tuple(notes),
         heldout_xyz_m=xyz,
@@ -321,20 +315,6 @@ def _stage(label, model, obs_te, blocks, labels, floor, level) -> Stage:
         heldout=residual_stats(obs_te.T_measured, T),
         regions=region_stats(E, labels, floor, level),
         residual_m=E,
-    )
-
-
-def _named(new: Restricted, fit: FitResult, top: CandidateScore, scores) -> NamedEffect:
-    names = top.kept
-    J = fit.jac / np.maximum(np.linalg.norm(fit.jac, axis=0), 1e-300)
-    sv = np.linalg.svd(J, compute_uv=False)
-    return NamedEffect(
-        effect=top.effect,
-        parameters=dict(zip(names, map(float, fit.params[-1]), strict=True)),
-        std=dict(zip(names, map(float, fit.std[-1]), strict=True)),
-        evidence=top,
-        candidates=scores,
-        fit_condition_number=float(sv[0] / sv[-1]),
     )
 
 

@@ -62,6 +62,10 @@ class Gap(Command):
             f"(noise floor {out['noise_floor_mm']:.4f} mm, {out['noise_floor_source']})\n"
             f"regions disagreeing before: {len(out['disagreement'])}; consistent with the noise "
             f"floor after: {'yes' if out['consistent_with_noise_floor'] else 'no'}"
+            + "".join(f"\nnot named: {e['message']}" for e in out["unnamed_corrections"])
+            + "".join(
+                f"\nnot formed: {c['effect']} ({c['why']})" for c in out["candidates_not_formed"]
+            )
             + ("".join(f"\nnote: {n}" for n in out["notes"]))
             + (f"\nreport: {files.markdown}" if files is not None else "")
         )
