@@ -58,6 +58,7 @@ class UnseenSpec:
     with_masses: bool | None = None
     with_secondary: bool | None = None
     noise_m: float = 25e-6
+    joint_span_deg: float | None = None
 
     def __post_init__(self) -> None:
         if self.hidden is not None and self.hidden not in VOCABULARY:
@@ -225,6 +226,8 @@ def unseen_campaign(spec: UnseenSpec) -> tuple[Dataset, RobotDescription, dict]:
     desc = random_robot(rng, n, masses)
     N = spec.n_points
     lim = desc.limits_rad
+    if spec.joint_span_deg is not None:  # a narrow campaign around the middle of the range
+        lim = lim.mean(axis=1)[:, None] + np.deg2rad(spec.joint_span_deg) / 2 * np.array([-1, 1])
     q = rng.uniform(lim[:, 0] * 0.9, lim[:, 1] * 0.9, (N, n))
     t = np.sort(rng.uniform(0, 8 * 3600.0, N))
     names = [random_name(rng, int(rng.integers(2, 9))) for _ in range(k)]
