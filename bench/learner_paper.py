@@ -3,7 +3,9 @@ replay (N_m=500, n_B=100), naive fine-tuning, interval coverage and the epistemi
 
     .venv/bin/python bench/learner_paper.py [--data /tmp/paper.parquet] [--model '{"members": 1}']
 
-``--model`` overrides ModelConfig fields (JSON) for every model of the run.
+``--model`` overrides ModelConfig fields (JSON) for every model of the run. ``--base`` is the
+physics base (default geometric: batch models identify it on their training points, continual
+ones from their first points, ``auto``; ``nominal`` is the learner alone).
 """
 
 import argparse
@@ -17,16 +19,19 @@ import numpy as np
 import torch
 
 from kinematics.dataset import read_dataset
-from learner.config import ContinualConfig, ModelConfig, TrainConfig
+from learner.base import make_base
+from learner.config import DEFAULT_BASE, ContinualConfig, ModelConfig, TrainConfig
 from learner.continual import ContinualLearner
 from learner.metrics import accuracy_report
 from learner.model import ErrorModel
 from learner.workflow import prepare
 
 
-def continual(p, strategy, train, model_cfg):
+def continual(p, strategy, train, model_cfg, base):
     model = ErrorModel.create(p.spec, model_cfg, TrainConfig(), 0, p.robot)
-    learner = ContinualLearner(model, ContinualConfig(memory=500, batch=100, strategy=strategy))
+    kind = "nominal" if base == "nominal" else "auto"
+    cfg = ContinualConfig(memory=500, batch=100, strategy=strategy, base=kind)
+    learner = ContinualLearner(model, cfg)
     start = time.perf_counter()
     early = None
     for m in learner.learn_stream(p.X[train], p.Y[train]):
@@ -43,6 +48,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--data", default="/tmp/paper.parquet")
     ap.add_argument("--model", default="{}", help="ModelConfig overrides as JSON")
+    ap.add_argument("--base", default=DEFAULT_BASE, choices=("nominal", "geometric"))
     args = ap.parse_args()
     model_cfg = ModelConfig(**json.loads(args.model))
     torch.set_num_threads(1)
@@ -69,11 +75,13 @@ def main() -> None:
     p = prepare(ds, test_fraction=0.1, seed=0)
     out = {
         "model_config": model_cfg.__dict__,
+        "base": args.base,
         "noise_floor_mm": 1e3 * ds.meta.noise_floor_m,
         "uncalibrated_test_mean_mm": float(np.linalg.norm(p.Y[p.test, :3], axis=1).mean() * 1e3),
     }
     start = time.perf_counter()
-    batch = ErrorModel.create(p.spec, model_cfg, TrainConfig(), 0, p.robot)
+    base = make_base(args.base, p.spec, p.X[p.train], p.Y[p.train])
+    batch = ErrorModel.create(p.spec, model_cfg, TrainConfig(), 0, p.robot, base)
     rep = batch.fit(p.X[p.train], p.Y[p.train])
     out["batch"] = accuracy_report(batch, p.X[p.test], p.Y[p.test]).to_dict()
     out["batch"] |= {
@@ -84,7 +92,7 @@ def main() -> None:
     print(json.dumps({"batch": out["batch"]}), flush=True)
     train = np.sort(p.train)
     for strategy in ("max_error", "naive"):
-        r, wall, early, first = continual(p, strategy, train, model_cfg)
+        r, wall, early, first = continual(p, strategy, train, model_cfg, args.base)
         out[strategy] = r.to_dict() | {
             "wall_s": wall,
             "first550_after_550_mm": early,
@@ -98,7 +106,8 @@ def main() -> None:
     rng.shuffle(left)
     held, fit_idx = left[:200], left[200:]
     right = np.flatnonzero(q1 >= 0)
-    half = ErrorModel.create(p.spec, model_cfg, TrainConfig(), 0, p.robot)
+    half_base = make_base(args.base, p.spec, p.X[fit_idx], p.Y[fit_idx])
+    half = ErrorModel.create(p.spec, model_cfg, TrainConfig(), 0, p.robot, half_base)
     half.fit(p.X[fit_idx], p.Y[fit_idx])
     # Per point: the epistemic variance of the position, summed over x, y, z (m²).
     var_in = half.predict(p.X[held]).epistemic()[:, :3].sum(axis=1)

@@ -20,8 +20,9 @@ import torch
 from kinematics.dataset import read_dataset
 from learner.base import reidentify_frames
 from learner.config import ContinualConfig, TrainConfig
+from learner.continual import load_learner
 from learner.metrics import accuracy_report
-from learner.workflow import load_learner, prepare, train_on_dataset
+from learner.workflow import prepare, train_on_dataset
 
 STEPS = (0, 10, 25, 50, 100)
 

@@ -31,13 +31,19 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from kinematics.calibration import GeometricFrames, apply_calibration, calibrate
+from kinematics.calibration import (
+    CalibrationConfig,
+    GeometricFrames,
+    apply_calibration,
+    calibrate,
+    identifiable,
+)
 from kinematics.dataset import Dataset, DatasetMeta
 from kinematics.description import RobotDescription
 from kinematics.effects import Conditions, Effect, Perturbation, perturbed_poses
 from kinematics.errors import ConfigError, IdentifiabilityError
 from kinematics.gap.conditions import observations_from_dataset
-from kinematics.gap.fitting import fit_effects
+from kinematics.gap.fitting import fit_effects, jacobian
 from kinematics.gap.model_file import EffectEntry, ModelFile, load_model_file
 from kinematics.model import RobotModel
 from kinematics.transforms import apply_error, invert, pose_error, xyz_quat_from_transform
@@ -86,12 +92,6 @@ class PhysicsBase:
     @cached_property
     def _blocks(self) -> list[tuple[Effect, np.ndarray]]:
         return self.blocks()
-
-    def with_frames(self, T_0_B: np.ndarray, tool: np.ndarray) -> PhysicsBase:
-        """The same base with a re-identified frame and tool (a new day, a re-mounted tool)."""
-        return replace(
-            self, T_0_B=np.asarray(T_0_B, float), description=self.description.with_tool(tool)
-        )
 
 
 def nominal_base(desc: RobotDescription) -> PhysicsBase:
@@ -170,21 +170,28 @@ def file_base(path: str | Path, spec: FeatureSpec, frame: np.ndarray) -> Physics
 
 
 def reidentify_frames(
-    base: PhysicsBase, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray
+    base: PhysicsBase, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray, offsets: bool = True
 ) -> PhysicsBase:
-    """The base with ``T_0_B`` and its tool re-identified from ``X, Y`` (a new day's first
-    points), its kinematics and effects held: the tracker moved, the tool was re-mounted. A
-    nominal base becomes a ``frames`` base."""
+    """The base with ``T_0_B``, its tool and (``offsets``) the joint offsets re-identified from
+    ``X, Y`` (a new day's first points), the rest of its kinematics and its effects held: the
+    tracker moved, the tool was re-mounted, an encoder was re-referenced. Only the parameters
+    these points identify are fitted (pivoted QR, as in calibration). A nominal base becomes a
+    ``frames`` base."""
     desc = base.description
     n = desc.n_joints
     obs = observations_from_dataset(measured_dataset(spec, X, Y), desc)
     obs = replace(obs, T_W_0=base.T_0_B)
-    frames = GeometricFrames(desc, tuple(range(5 * n, 5 * n + 12)))
-    blocks = [(frames, np.zeros(12)), *((_Held(e, p), np.zeros(0)) for e, p in base.blocks())]
-    fit = fit_effects(base.model, obs, blocks)
+    free = tuple(5 * i + 4 for i in range(n)) if offsets else ()
+    free += tuple(range(5 * n, 5 * n + 12))
+    held = [(_Held(e, p), np.zeros(0)) for e, p in base.blocks()]
+    candidate = GeometricFrames(desc, free)
+    J = jacobian(base.model, obs, [(candidate, np.zeros(len(free))), *held], 1.0, only=0)
+    kept = identifiable(J, candidate.parameter_names(desc), CalibrationConfig().rank_rtol)
+    frames = GeometricFrames(desc, tuple(free[i] for i in kept.kept_index))
+    fit = fit_effects(base.model, obs, [(frames, np.zeros(len(kept.kept))), *held])
     calibrated, T_0_B = apply_calibration(desc, obs.T_W_0, frames.full(fit.params[0]))
     kind = "frames" if base.kind == "nominal" else base.kind
-    return replace(base.with_frames(T_0_B, calibrated.tool), kind=kind)
+    return replace(base, kind=kind, description=calibrated, T_0_B=T_0_B)
 
 
 def make_base(

@@ -123,8 +123,9 @@ class ContinualConfig:
     ``memory`` 500 is the published setting; on the paper campaign 2,000 matches batch
     training at about twice the update time (BENCHMARKS.md). ``base`` is the physics base the
     first model is identified on from the ``init`` points (:mod:`learner.base`; a model that
-    has one keeps it); ``auto`` takes the nominal when they are too few to identify it. ``aci_rate`` is the step of the adaptive conformal interval scale per
-    new point outside (or inside) the ``aci_level`` interval, in log units (0 turns it off)."""
+    has one keeps it); ``auto`` takes the nominal when they are too few to identify it.
+    ``aci_rate`` is the step of the adaptive conformal interval scale per new point outside
+    (or inside) the ``aci_level`` interval, in log units (0 turns it off)."""
 
     memory: int = 500
     batch: int = 100

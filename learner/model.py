@@ -165,13 +165,20 @@ class ErrorModel:
             return combine_members(*self.net(Xs), self.model_cfg.members)
 
     def predict(self, X: np.ndarray) -> Evidential:
-        """NIG prediction in label units (m, rad) for raw SI features ``(N, F)``."""
+        """NIG prediction in label units (m, rad) for raw SI features ``(N, F)``: the base's
+        error plus the network's residual, the latter weighed against its prior (the spread of
+        the training residuals) by its epistemic variance. Where the network extrapolates
+        (another day's poses, 10-200x its in-distribution epistemic spread on UR10), the
+        prediction falls back to the base instead of growing with the network's guess."""
         gamma, nu, alpha, beta = (t.double().numpy() for t in self.predict_scaled(self.scale_x(X)))
         mean = np.zeros(N_LABELS) if self.label_mean is None else self.label_mean
         std = np.ones(N_LABELS) if self.label_std is None else self.label_std
+        residual = mean + std * gamma
+        if self.label_std is not None:  # the residual's prior N(mean, std²) meets the network's
+            epistemic = beta * std**2 / (nu * (alpha - 1.0))
+            residual = mean + (std**2 / (std**2 + epistemic)) * (residual - mean)
         beta = beta * (std * self.interval_scale) ** 2
-        gamma = mean + std * gamma + self.base_error(X)
-        return Evidential(gamma=gamma, nu=nu, alpha=alpha, beta=beta)
+        return Evidential(gamma=residual + self.base_error(X), nu=nu, alpha=alpha, beta=beta)
 
     def calibrate(self, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
         """Fit the per-component factor on the Student-t scale that minimises the predictive

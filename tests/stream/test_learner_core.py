@@ -80,3 +80,29 @@ def test_a_bad_batch_is_refused_without_touching_the_state(batches):
         c.add_batch(Batch(seq=2, points=tuple(points)))
     assert (c.last_seq, c.n_points, c.learner.version) == (1, 40, 1)
     assert c.add_batch(bs[2]).metrics.model_version == 2
+
+
+def test_a_carried_model_goes_on_and_a_foreign_one_is_refused(batches, tmp_path):
+    from kinematics.errors import ConfigError
+    from learner.continual import ContinualLearner, state_path, state_to_bytes
+    from learner.snapshot import atomic_write_bytes, save_snapshot
+
+    ds, bs = batches
+    day1 = core(ds)
+    for b in bs[:3]:
+        day1.add_batch(b)
+    path = tmp_path / "day1.safetensors"
+    save_snapshot(day1.learner.model, path)
+    atomic_write_bytes(state_path(path), state_to_bytes(day1.learner.state_dict()))
+    day2 = LearnerCore(
+        load_description(ds.meta.robot),
+        replace(CFG, start_from=str(path)),
+        np.asarray(ds.meta.T_W_0),
+    )
+    assert isinstance(day2.learner, ContinualLearner)
+    assert day2.learner.version == day1.learner.version == 2
+    update = day2.add_batch(bs[3])  # frames re-identified from this batch, then learned
+    assert update is not None and update.metrics.model_version == 3
+    assert len(day2.learner.memory) == len(day1.learner.memory) == 40
+    with pytest.raises(ConfigError, match="is for robot 'fanuc_m900ib700'"):
+        LearnerCore(load_description("ur10"), replace(CFG, start_from=str(path)))
