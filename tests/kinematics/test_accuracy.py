@@ -1,5 +1,7 @@
 """Uncalibrated accuracy summary of a dataset against its nominal robot model."""
 
+from dataclasses import replace
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -77,6 +79,12 @@ def test_summarize_file_checks_limits_and_robot(tmp_path):
     assert s.mean_mm == pytest.approx(np.sqrt(3), abs=1e-9) and (tmp_path / "h.png").exists()
     with pytest.raises(DescriptionError, match="unknown robot 'nope'"):
         summarize_file(path, robot="nope")
-    # On the Fanuc the UR10's joint angles break J2's limits: named by row and column.
-    with pytest.raises(DatasetError, match=r"row \d+, column 'q\d': .* outside the joint limits"):
+    # Another robot's description is refused by the one identity rule (kinematics/identity.py).
+    with pytest.raises(DatasetError, match="dataset is of robot 'ur10', description is 'fanuc"):
         summarize_file(path, robot="fanuc_m900ib700")
+    # Said to be a Fanuc, the UR10's joint angles break J2's limits: named by row and column.
+    fanuc = write_dataset(
+        Dataset(ds.table, replace(ds.meta, robot="fanuc_m900ib700")), tmp_path / "f.parquet"
+    )
+    with pytest.raises(DatasetError, match=r"row \d+, column 'q\d': .* outside the joint limits"):
+        summarize_file(fanuc)
