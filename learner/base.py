@@ -170,13 +170,15 @@ def file_base(path: str | Path, spec: FeatureSpec, frame: np.ndarray) -> Physics
 
 
 def reidentify_frames(
-    base: PhysicsBase, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray, offsets: bool = True
+    base: PhysicsBase, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray, offsets: bool = False
 ) -> PhysicsBase:
     """The base with ``T_0_B``, its tool and (``offsets``) the joint offsets re-identified from
     ``X, Y`` (a new day's first points), the rest of its kinematics and its effects held: the
     tracker moved, the tool was re-mounted, an encoder was re-referenced. Only the parameters
     these points identify are fitted (pivoted QR, as in calibration). A nominal base becomes a
-    ``frames`` base."""
+    ``frames`` base. Offsets are off by default: from a new day's first 10-100 UR10 points
+    they fold local pose error into the encoders (B -> A: 2.76 mm with them, 0.73 mm without,
+    BENCHMARKS.md "Real UR10")."""
     desc = base.description
     n = desc.n_joints
     obs = observations_from_dataset(measured_dataset(spec, X, Y), desc)

@@ -27,8 +27,8 @@ import torch
 from optuna.trial import FrozenTrial, TrialState
 
 from kinematics.dataset import Dataset
-from kinematics.description import load_description
 from kinematics.errors import ConfigError
+from kinematics.identity import description_for
 from kinematics.model import RobotModel
 from learner.base import DEFAULT_BASE, PhysicsBase, data_frame, make_base
 from learner.config import ModelConfig, TrainConfig
@@ -310,7 +310,7 @@ def retrain(
 
 def dataset_arrays(ds: Dataset) -> tuple[FeatureSpec, np.ndarray, np.ndarray]:
     """Every feature the dataset has, its raw SI features and its pose-error labels."""
-    desc = load_description(ds.meta.robot)
+    desc = description_for(ds)
     spec = dataset_feature_spec(ds, desc)
     return spec, dataset_features(ds, spec), dataset_labels(ds, RobotModel(desc))
 

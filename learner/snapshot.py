@@ -4,13 +4,13 @@ The metadata (under the safetensors header key ``robocal``) holds the schema ver
 its description (TOML text, for the kinematic input encoding), feature names, model/train
 configs, seed and training metrics; the tensors hold the network weights, the fixed scalers and
 the sensor transform ``T_6_S`` (float64, so predictions after a reload are bit-identical).
-Version 1 snapshots (before input encodings and members existed) load as ``encoding =
-"minmax"``, one member.
+The physics base travels too (kind, note, description TOML and effects in the JSON; its frame
+``T_0_B`` and tool as float64 tensors), so a reloaded model predicts what it predicted. Version
+1 snapshots (before input encodings and members existed) load as ``encoding = "minmax"``, one
+member; snapshots without a base load on the nominal.
 
 >>> from kinematics.description import load_description
->>> from kinematics.gap.model_file import EffectEntry
-from learner.base import PhysicsBase
-from learner.config import ModelConfig, TrainConfig
+>>> from learner.config import ModelConfig, TrainConfig
 >>> from learner.features import feature_spec
 >>> spec = feature_spec(load_description("ur10"), 0, False)
 >>> m = ErrorModel.create(spec, ModelConfig(hidden_layers=1, neurons=8), TrainConfig(), seed=0)

@@ -15,8 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from kinematics.dataset import Dataset
-from kinematics.description import RobotDescription, load_description
+from kinematics.description import RobotDescription
 from kinematics.errors import ConfigError, DatasetError
+from kinematics.identity import check_match, description_for
 from kinematics.model import RobotModel
 from learner.base import (
     DEFAULT_BASE,
@@ -53,7 +54,7 @@ class Prepared:
 
 def nominal_description(ds: Dataset) -> RobotDescription:
     """The dataset's robot description, with its ``T_6_S`` when the metadata knows it."""
-    desc = load_description(ds.meta.robot)
+    desc = description_for(ds)
     return desc if ds.meta.T_6_S is None else desc.with_tool(np.asarray(ds.meta.T_6_S))
 
 
@@ -222,7 +223,9 @@ def curve_paths(out: str | Path) -> tuple[Path, Path]:
 
 def evaluate_on_dataset(model: ErrorModel, ds: Dataset) -> AccuracyReport:
     """Accuracy of a trained model on every point of ``ds`` (features by the model's names)."""
-    if ds.meta.robot != model.robot and model.robot:
+    if model.spec.description is not None:
+        check_match(model.spec.description, ds)
+    elif ds.meta.robot != model.robot and model.robot:
         raise DatasetError(f"model is for robot {model.robot!r}, dataset is {ds.meta.robot!r}")
     p = prepare(ds, test_fraction=0.0, spec=model.spec)
     return accuracy_report(model, p.X, p.Y)
