@@ -1,13 +1,12 @@
 """Hyperparameter search for the evidential ensemble: TPE + Hyperband over k-fold CV.
 
 The score of a trial is DESIGN.md's: the mean over ``folds`` cross-validation folds of the
-minimum validation MSE over epochs (scaled label units, see :mod:`learner.model`). Folds run
-one after the other (fold-major) and every epoch reports, at step ``fold * max_epochs +
-epoch``, the running score: the mean over the folds seen so far of their minimum validation
-MSE so far. All trials use the same folds, so at a given step every trial has seen the same
-data and the values are comparable: Hyperband's early rungs compare the first fold's learning
-curves (most of the saving: a pruned trial never trains its other folds), its late rungs
-compare means over several folds, and the last step is exactly the trial's score.
+minimum validation MSE over epochs (scaled label units, see :mod:`learner.model`). By default a
+trial's folds train at once as one batched model and every epoch reports the mean over the
+folds to Hyperband (:mod:`learner.hpo_objective`); a trial's epochs are capped by a work budget
+that scales with the data and network size (:mod:`learner.hpo_config`). ``workers`` processes
+on one machine, or any number on several machines sharing an RDB storage (PostgreSQL), run one
+study together (:mod:`learner.hpo_study`, :mod:`learner.hpo_workers`).
 
 Among the ``top_k`` best trials the one with the fewest weights is retrained on all data for
 the mean best epoch of its folds and written as a snapshot (:mod:`learner.snapshot`).
@@ -15,14 +14,12 @@ the mean best epoch of its folds and written as a snapshot (:mod:`learner.snapsh
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
-import optuna
 import torch
 from optuna.trial import FrozenTrial, TrialState
 
@@ -31,64 +28,22 @@ from kinematics.errors import ConfigError
 from kinematics.identity import description_for
 from kinematics.model import RobotModel
 from learner.base import DEFAULT_BASE, PhysicsBase, data_frame, make_base
-from learner.config import ModelConfig, TrainConfig
 from learner.features import FeatureSpec, dataset_feature_spec, dataset_features, dataset_labels
-from learner.hpo_space import SearchSpace, TrialParams, suggest
+from learner.hpo_config import HpoConfig
+from learner.hpo_objective import cv_folds, cv_objective, trial_configs
+from learner.hpo_space import SearchSpace, TrialParams
 from learner.hpo_study import (
-    Objective,
     Progress,
     lock_path,
-    make_study,
-    open_storage,
     run_trials,
     select_trial,
     top_trials,
 )
+from learner.hpo_workers import open_study, start_workers, wait_workers
 from learner.model import ErrorModel
 from learner.snapshot import save_snapshot
 
-
-@dataclass(frozen=True, kw_only=True)
-class HpoConfig:
-    """The search: trial budget, CV folds, epochs per fold, Hyperband rungs, selection."""
-
-    trials: int = 50
-    timeout_s: float | None = None
-    folds: int = 5
-    max_epochs: int = 200
-    min_epochs: int = 10
-    reduction_factor: int = 3
-    startup_trials: int = 10
-    prune: bool = True
-    top_k: int = 10
-    seed: int = 0
-    study: str = "robocal-hpo"
-
-    def __post_init__(self) -> None:
-        for key in ("trials", "max_epochs", "min_epochs", "top_k", "startup_trials"):
-            value = getattr(self, key)
-            if not isinstance(value, int) or value < 1:
-                raise ConfigError(f"hpo.{key} must be an int >= 1, got {value!r}")
-        if not isinstance(self.folds, int) or self.folds < 2:
-            raise ConfigError(f"hpo.folds must be an int >= 2, got {self.folds!r}")
-        if not isinstance(self.reduction_factor, int) or self.reduction_factor < 2:
-            raise ConfigError(
-                f"hpo.reduction_factor must be an int >= 2, got {self.reduction_factor!r}"
-            )
-        if self.min_epochs > self.max_step:
-            raise ConfigError(
-                f"hpo.min_epochs must be <= folds * max_epochs = {self.max_step}, "
-                f"got {self.min_epochs}"
-            )
-        if self.timeout_s is not None and not self.timeout_s > 0:
-            raise ConfigError(f"hpo.timeout_s must be > 0, got {self.timeout_s}")
-        if not self.study:
-            raise ConfigError("hpo.study must be a non-empty name, got ''")
-
-    @property
-    def max_step(self) -> int:
-        """The last step a trial reports: every epoch of every fold."""
-        return self.folds * self.max_epochs
+__all__ = ["HpoConfig", "HpoResult", "TrialRow", "cv_folds", "run_hpo", "search", "retrain"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -122,6 +77,8 @@ class HpoResult:
     pruned: int
     failed: int
     ran_here: int
+    workers: int
+    worker_exit_codes: tuple[int, ...]
     wall_s: float
     best: TrialRow
     selected: TrialRow
@@ -158,76 +115,6 @@ class HpoResult:
         return "\n".join(lines)
 
 
-def cv_folds(n: int, k: int, seed: int) -> list[np.ndarray]:
-    """Validation indices of ``k`` shuffled folds of ``n`` points (the same for every trial).
-
-    >>> [f.size for f in cv_folds(11, 5, seed=0)]
-    [3, 2, 2, 2, 2]
-    """
-    if n < k:
-        raise ConfigError(f"hpo needs at least one point per fold: {n} points for {k} folds")
-    order = np.random.default_rng(seed).permutation(n)
-    return [np.sort(f) for f in np.array_split(order, k)]
-
-
-def trial_configs(
-    p: TrialParams, cfg: HpoConfig, max_epochs: int | None = None, val_fraction: float = 0.1
-) -> tuple[ModelConfig, TrainConfig]:
-    """The learner's configs for one point of the space (Adam, lr x 0.75 after 30 epochs)."""
-    model_cfg = ModelConfig(
-        hidden_layers=p.hidden_layers, neurons=p.neurons, activation=p.activation, dropout=p.dropout
-    )
-    train_cfg = TrainConfig(
-        batch_size=p.batch_size,
-        lr=p.lr,
-        weight_decay=p.weight_decay,
-        max_epochs=max_epochs or cfg.max_epochs,
-        val_fraction=val_fraction,
-        seed=cfg.seed,
-    )
-    return model_cfg, train_cfg
-
-
-def cv_objective(
-    spec: FeatureSpec,
-    X: np.ndarray,
-    Y: np.ndarray,
-    space: SearchSpace,
-    cfg: HpoConfig,
-    base: PhysicsBase | None = None,
-) -> Objective:
-    """The trial objective: k-fold CV score of residual networks on ``base``, reported every
-    epoch (see the module docstring)."""
-    folds = cv_folds(len(X), cfg.folds, cfg.seed)
-
-    def objective(trial: optuna.Trial) -> float:
-        model_cfg, train_cfg = trial_configs(suggest(trial, space), cfg)
-        mins: list[float] = []
-        best_epochs: list[int] = []
-        for k, val in enumerate(folds):
-            train = np.setdiff1d(np.arange(len(X)), val)
-            model = ErrorModel.create(spec, model_cfg, train_cfg, seed=cfg.seed + k, base=base)
-            if k == 0:
-                trial.set_user_attr("n_weights", model.n_weights)
-            running = [math.inf]
-            torch.manual_seed(cfg.seed + k)  # dropout masks come from torch's global generator
-
-            def on_epoch(epoch: int, val_mse: float, k: int = k, running: list = running) -> None:
-                if math.isfinite(val_mse):
-                    running[0] = min(running[0], val_mse)
-                trial.report((sum(mins) + running[0]) / (k + 1), step=k * cfg.max_epochs + epoch)
-                if trial.should_prune():
-                    raise optuna.TrialPruned(f"pruned at fold {k}, epoch {epoch}")
-
-            report = model.fit(X[train], Y[train], X[val], Y[val], on_epoch=on_epoch)
-            mins.append(running[0])
-            best_epochs.append(report.best_epoch)
-        trial.set_user_attr("best_epochs", best_epochs)
-        return float(np.mean(mins))
-
-    return objective
-
-
 def search(
     spec: FeatureSpec,
     X: np.ndarray,
@@ -240,30 +127,43 @@ def search(
     robot: str = "",
     on_trial: Callable[[Progress], None] | None = None,
     base: PhysicsBase | None = None,
+    workers: int = 1,
 ) -> HpoResult:
     """Run (or resume, or join) the study on ``storage`` up to ``cfg.trials`` trials, select
     among the best the smallest model, retrain it on all of ``X, Y`` and save it to ``out``.
-    Every network learns the residual of ``base`` (None: the nominal)."""
+    Every network learns the residual of ``base`` (None: the nominal). ``workers - 1`` helper
+    processes run trials beside this one, each with this process's torch thread count."""
+    if not isinstance(workers, int) or workers < 1:
+        raise ConfigError(f"hpo workers must be an int >= 1, got {workers!r}")
     start = time.perf_counter()
-    study = make_study(
-        open_storage(storage),
-        cfg.study,
-        seed=cfg.seed,
-        max_resource=cfg.max_step,
-        min_resource=cfg.min_epochs,
-        reduction_factor=cfg.reduction_factor,
-        prune=cfg.prune,
-        n_startup_trials=cfg.startup_trials,
+    deadline = None if cfg.timeout_s is None else time.monotonic() + cfg.timeout_s
+    study = open_study(cfg, storage)
+    space = space or SearchSpace()
+    helpers = start_workers(
+        workers - 1,
+        spec,
+        X,
+        Y,
+        cfg,
+        storage,
+        space=space,
+        base=base,
+        deadline=deadline,
+        threads=torch.get_num_threads(),
     )
-    objective = cv_objective(spec, X, Y, space or SearchSpace(), cfg, base)
-    mine = run_trials(
-        study,
-        objective,
-        cfg.trials,
-        timeout_s=cfg.timeout_s,
-        lock=lock_path(storage),
-        on_trial=on_trial,
-    )
+    try:
+        mine = run_trials(
+            study,
+            cv_objective(spec, X, Y, space, cfg, base, deadline),
+            cfg.trials,
+            timeout_s=cfg.timeout_s,
+            lock=lock_path(storage),
+            on_trial=on_trial,
+        )
+    except BaseException:
+        wait_workers(helpers, stop=True)
+        raise
+    exit_codes = wait_workers(helpers)
     chosen = select_trial(study, cfg.top_k)
     epochs = max(1, round(float(np.mean(chosen.user_attrs.get("best_epochs", [cfg.max_epochs])))))
     model = retrain(spec, X, Y, TrialParams.from_dict(chosen.params), cfg, epochs, robot, base)
@@ -280,6 +180,8 @@ def search(
         pruned=counts[TrialState.PRUNED],
         failed=counts[TrialState.FAIL],
         ran_here=len(mine),
+        workers=workers,
+        worker_exit_codes=tuple(exit_codes),
         wall_s=time.perf_counter() - start,
         best=TrialRow.of(top_trials(study, 1)[0]),
         selected=TrialRow.of(chosen),
@@ -324,6 +226,7 @@ def run_hpo(
     out: str | Path | None = None,
     on_trial: Callable[[Progress], None] | None = None,
     base: str = DEFAULT_BASE,
+    workers: int = 1,
 ) -> HpoResult:
     """:func:`search` on every feature and the labels of a dataset (what ``robocal hpo`` runs),
     on the physics ``base`` identified from all its points (a few dozen parameters, shared by
@@ -341,4 +244,5 @@ def run_hpo(
         robot=ds.meta.robot,
         on_trial=on_trial,
         base=physics,
+        workers=workers,
     )

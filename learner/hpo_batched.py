@@ -1,0 +1,248 @@
+"""All cross-validation folds of a trial trained at once, as one batched ensemble.
+
+:class:`~learner.ensemble.EvidentialEnsemble` already evaluates its heads as batched weight
+tensors ``(H, in, out)``; here a trial's ``K`` folds become ``K`` groups of heads of one such
+ensemble (head ``k * 6 * members + m * 6 + c``: fold ``k``, member ``m``, component ``c``). Every
+mini-batch is drawn from all points; a fold's heads learn only from the rows outside its
+validation fold (a per-fold row mask on the loss), and everything else that couples parameters
+is per fold: label scaling, gradient-norm clipping, the Adam learning rate and its plateau cut,
+skipped non-finite steps and early stopping. Each fold therefore trains as
+:meth:`learner.model.ErrorModel.fit` would train it alone (same rules, other random draws), in
+one pass instead of ``K``. The mini-batch holds ``ceil(batch_size * K / (K - 1))`` rows so that
+each fold sees about ``batch_size`` training rows per step, as it would alone.
+
+Small networks run several times faster this way (per-step overhead is shared); networks whose
+step is bound by memory traffic over their weights gain little (BENCHMARKS.md, "Hyperparameter
+search").
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from learner.base import PhysicsBase
+from learner.config import ModelConfig, TrainConfig
+from learner.ensemble import EvidentialEnsemble
+from learner.evidential import nig_nll, nig_regularizer
+from learner.features import FeatureSpec
+from learner.model import N_LABELS, ErrorModel
+
+#: Gradients are clipped per fold to this total norm (as :mod:`learner.model` does per model).
+MAX_GRAD_NORM = 100.0
+_BETAS = (0.9, 0.999)
+_EPS = 1e-8
+_PLATEAU_FACTOR = 0.75
+_PLATEAU_THRESHOLD = 1e-4  # relative, as torch's ReduceLROnPlateau default
+
+
+@dataclass(frozen=True, kw_only=True)
+class FoldsReport:
+    """What :func:`train_folds` did: per fold the minimum validation MSE over epochs (scaled
+    label units) and the epoch it came at, the epochs run, the wall time (s) and the batched
+    network as it ended (fold ``k``'s heads: ``k * 6 * members`` onwards)."""
+
+    min_val_mse: tuple[float, ...]
+    best_epochs: tuple[int, ...]
+    epochs: int
+    train_time_s: float
+    net: EvidentialEnsemble | None = field(default=None, repr=False, compare=False)
+
+
+def fold_batch_size(batch_size: int, folds: int, n: int) -> int:
+    """Rows per batched step so that each of ``folds`` folds sees about ``batch_size`` of its
+    training rows (a fold trains on ``(K - 1) / K`` of them).
+
+    >>> fold_batch_size(32, 5, 300), fold_batch_size(64, 2, 100)
+    (40, 100)
+    """
+    return min(n, math.ceil(batch_size * folds / (folds - 1)))
+
+
+def train_folds(
+    spec: FeatureSpec,
+    X: np.ndarray,
+    Y: np.ndarray,
+    folds: list[np.ndarray],
+    model_cfg: ModelConfig,
+    train_cfg: TrainConfig,
+    *,
+    seed: int,
+    base: PhysicsBase | None = None,
+    on_epoch: Callable[[int, np.ndarray], None] | None = None,
+    deadline: float | None = None,
+) -> FoldsReport:
+    """Train one residual network per fold on ``base`` (validation rows ``folds[k]``), all in
+    one batched ensemble, for ``train_cfg.max_epochs`` at most.
+
+    ``X`` are raw SI features ``(N, F)``, ``Y`` pose-error labels ``(N, 6)`` (m, rad).
+    ``on_epoch(epoch, running_min)`` gets every fold's minimum validation MSE so far ``(K,)``
+    and may raise (e.g. ``optuna.TrialPruned``) to stop; the exception propagates. Past
+    ``deadline`` (``time.monotonic()``, s) the next step raises ``TimeoutError``.
+    """
+    start = time.perf_counter()
+    K, M = len(folds), model_cfg.members
+    per_fold = N_LABELS * M
+    probe = ErrorModel.create(spec, model_cfg, train_cfg, seed=seed, base=base)
+    Xs = probe.scale_x(X)
+    R = np.asarray(Y, dtype=float) - probe.base_error(X)  # the networks learn what the base leaves
+    n = len(X)
+    train_mask = np.ones((n, K), dtype=bool)
+    for k, val in enumerate(folds):
+        train_mask[val, k] = False
+    Ys = np.empty((n, K, N_LABELS))
+    for k in range(K):
+        rows = R[train_mask[:, k]]
+        std = rows.std(axis=0)
+        Ys[:, k] = (R - rows.mean(axis=0)) / np.where(std > 1e-12, std, 1.0)
+    target = torch.as_tensor(np.repeat(Ys[:, :, None, :], M, axis=2).reshape(n, K * per_fold))
+    target = target.float()
+    mask = torch.as_tensor(np.repeat(train_mask, per_fold, axis=1), dtype=torch.float32)
+    val_mask = torch.as_tensor(~train_mask, dtype=torch.float32)
+    net = EvidentialEnsemble(
+        n_inputs=Xs.shape[1],
+        hidden_layers=model_cfg.hidden_layers,
+        neurons=model_cfg.neurons,
+        activation=model_cfg.activation,
+        dropout=model_cfg.dropout,
+        n_heads=K * per_fold,
+        seed=seed,
+    )
+    opt = _FoldAdam(list(net.parameters()), K, per_fold, train_cfg.lr, train_cfg.weight_decay)
+    gen = torch.Generator().manual_seed(train_cfg.seed + seed)
+    bs = fold_batch_size(train_cfg.batch_size, K, n)
+    best = np.full(K, np.inf)
+    best_epoch = np.zeros(K, dtype=int)
+    plateau_best = np.full(K, np.inf)
+    bad = np.zeros(K, dtype=int)
+    active = np.ones(K, dtype=bool)
+    epoch = 0
+    for epoch in range(1, train_cfg.max_epochs + 1):
+        net.train()
+        perm = torch.randperm(n, generator=gen)
+        for i in range(0, n, bs):
+            if deadline is not None and time.monotonic() > deadline:
+                raise TimeoutError(f"deadline passed in epoch {epoch}")
+            idx = perm[i : i + bs]
+            gamma, nu, alpha, beta = net(Xs[idx])
+            y = target[idx]
+            elem = nig_nll(y, gamma, nu, alpha, beta) + train_cfg.lam * nig_regularizer(
+                y, gamma, nu, alpha
+            )
+            m = mask[idx]
+            counts = m.sum(dim=0).clamp(min=1.0) * per_fold
+            fold_loss = ((elem * m).sum(dim=0) / counts).view(K, per_fold).sum(dim=1)
+            opt.zero_grad()
+            finite = torch.isfinite(fold_loss)
+            torch.where(finite, fold_loss, torch.zeros_like(fold_loss)).sum().backward()
+            opt.step(finite & torch.as_tensor(active))
+        val = _val_mse(net, Xs, target, val_mask, K, M)
+        for k in np.flatnonzero(active):
+            score = val[k] if math.isfinite(val[k]) else math.inf
+            if score < best[k]:
+                best[k], best_epoch[k] = score, epoch
+            if score < plateau_best[k] * (1.0 - _PLATEAU_THRESHOLD):
+                plateau_best[k], bad[k] = score, 0
+            else:
+                bad[k] += 1
+                if bad[k] > train_cfg.patience_lr:
+                    opt.lr[k] *= _PLATEAU_FACTOR
+                    bad[k] = 0
+            if epoch - best_epoch[k] >= train_cfg.early_stop_patience:
+                active[k] = False
+        if on_epoch is not None:
+            on_epoch(epoch, best.copy())
+        if not active.any():
+            break
+    return FoldsReport(
+        min_val_mse=tuple(float(b) for b in best),
+        best_epochs=tuple(int(e) for e in best_epoch),
+        epochs=epoch,
+        train_time_s=time.perf_counter() - start,
+        net=net,
+    )
+
+
+def _val_mse(
+    net: EvidentialEnsemble,
+    Xs: torch.Tensor,
+    target: torch.Tensor,
+    val_mask: torch.Tensor,
+    K: int,
+    M: int,
+) -> np.ndarray:
+    """Per fold the validation MSE ``(K,)`` of the members' mean ``gamma`` (scaled units)."""
+    net.eval()
+    with torch.inference_mode():
+        gamma = net(Xs)[0].view(-1, K, M, N_LABELS).mean(dim=2)
+        y = target.view(-1, K, M, N_LABELS)[:, :, 0]
+        sq = (gamma - y).square().mean(dim=2)  # (N, K)
+        mse = (sq * val_mask).sum(dim=0) / val_mask.sum(dim=0).clamp(min=1.0)
+    return mse.double().numpy()
+
+
+class _FoldAdam:
+    """Adam (L2 weight decay as ``torch.optim.Adam``) over parameters whose first dimension is
+    the head, with one learning rate per fold of ``per_fold`` heads, per-fold gradient-norm
+    clipping, and per-fold skipping of a step (non-finite loss or gradient, or a stopped fold)."""
+
+    def __init__(
+        self, params: list[torch.Tensor], folds: int, per_fold: int, lr: float, decay: float
+    ) -> None:
+        self.params = params
+        self.folds, self.per_fold = folds, per_fold
+        self.lr = np.full(folds, lr)
+        self.decay = decay
+        self.exp_avg = [torch.zeros_like(p) for p in params]
+        self.exp_avg_sq = [torch.zeros_like(p) for p in params]
+        self.steps = np.zeros(folds, dtype=int)
+
+    def zero_grad(self) -> None:
+        for p in self.params:
+            p.grad = None
+
+    def step(self, allowed: torch.Tensor) -> None:
+        """One Adam step for the folds ``allowed`` ``(K,) bool`` whose gradient is finite."""
+        grads = [p.grad if p.grad is not None else torch.zeros_like(p) for p in self.params]
+        sq = sum(g.square().sum(dim=tuple(range(1, g.dim()))) for g in grads)
+        norm = sq.view(self.folds, self.per_fold).sum(dim=1).sqrt()  # (K,)
+        ok = allowed & torch.isfinite(norm)
+        if not bool(ok.any()):
+            return
+        clip = torch.where(ok, (MAX_GRAD_NORM / (norm + 1e-6)).clamp(max=1.0), 0.0)
+        ok_np = ok.numpy()
+        self.steps += ok_np
+        b1, b2 = _BETAS
+        t = np.maximum(self.steps, 1)
+        step_size = np.where(ok_np, self.lr / (1.0 - b1**t), 0.0)
+        head = lambda v: torch.as_tensor(v, dtype=torch.float32).repeat_interleave(  # noqa: E731
+            self.per_fold
+        )
+        size_h, clip_h = head(step_size), head(clip)
+        bc2_h = head(np.sqrt(1.0 - b2**t))
+        every = bool(ok.all())
+        clipped = bool((clip < 1.0).any())
+        keep_h = head(ok_np.astype(np.float32))
+        with torch.no_grad():
+            for p, g, m, v in zip(self.params, grads, self.exp_avg, self.exp_avg_sq, strict=True):
+                shape = (-1,) + (1,) * (p.dim() - 1)
+                if not every:
+                    g = torch.nan_to_num(g, nan=0.0, posinf=0.0, neginf=0.0)
+                if clipped or not every:
+                    g = g * clip_h.view(shape)
+                if self.decay:
+                    g = g.add(p, alpha=self.decay)
+                if every:  # the usual step, in place
+                    m.lerp_(g, 1.0 - b1)
+                    v.mul_(b2).addcmul_(g, g, value=1.0 - b2)
+                else:  # a skipped fold keeps its moments
+                    keep = keep_h.view(shape)
+                    m.add_((g - m) * ((1.0 - b1) * keep))
+                    v.add_((g.square() - v) * ((1.0 - b2) * keep))
+                denom = v.sqrt().div_(bc2_h.view(shape)).add_(_EPS)
+                p.addcdiv_(m * size_h.view(shape), denom, value=-1.0)
