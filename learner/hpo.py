@@ -30,11 +30,11 @@ from kinematics.model import RobotModel
 from learner.base import DEFAULT_BASE, PhysicsBase, data_frame, make_base
 from learner.features import FeatureSpec, dataset_feature_spec, dataset_features, dataset_labels
 from learner.hpo_config import HpoConfig
+from learner.hpo_lock import study_lock
 from learner.hpo_objective import cv_folds, cv_objective, trial_configs
 from learner.hpo_space import SearchSpace, TrialParams
 from learner.hpo_study import (
     Progress,
-    lock_path,
     run_trials,
     select_trial,
     top_trials,
@@ -157,7 +157,7 @@ def search(
             cv_objective(spec, X, Y, space, cfg, base, deadline),
             cfg.trials,
             timeout_s=cfg.timeout_s,
-            lock=lock_path(storage),
+            lock=study_lock(storage, cfg.study),
             on_trial=on_trial,
         )
     except BaseException:

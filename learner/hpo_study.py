@@ -5,8 +5,9 @@ A study lives in a storage several processes can share: by default an append-onl
 reads it), or any RDB URL (``sqlite:///hpo.db``). Every worker counts the trials that are
 finished or still running in the whole study and asks for a new one only while that count is
 below the requested total, so a stopped study resumes where it stopped and two workers on one
-storage run exactly the requested number of trials together. On one machine the count-and-ask
-step holds an exclusive file lock beside the storage file; running trials left behind by a
+storage run exactly the requested number of trials together. The count-and-ask step holds a
+lock: a file lock beside a journal or SQLite file, or a database advisory lock on PostgreSQL
+(:mod:`learner.hpo_lock`); running trials left behind by a
 crashed worker on this host are marked failed (and so redone).
 """
 
@@ -172,7 +173,7 @@ def run_trials(
     n_trials: int,
     *,
     timeout_s: float | None = None,
-    lock: Path | None = None,
+    lock: Path | Callable[[], contextlib.AbstractContextManager[None]] | None = None,
     on_trial: Callable[[Progress], None] | None = None,
 ) -> list[int]:
     """Run trials until the study holds ``n_trials`` finished or running ones (or the timeout
@@ -186,7 +187,7 @@ def run_trials(
     start = time.monotonic()
     mine: list[int] = []
     while timeout_s is None or time.monotonic() - start < timeout_s:
-        with _file_lock(lock):
+        with lock() if callable(lock) else _file_lock(lock):
             fail_stale_trials(study)
             if len(study.get_trials(deepcopy=False, states=COUNTED)) >= n_trials:
                 break

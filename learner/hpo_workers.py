@@ -10,17 +10,21 @@ other machines are just more ``robocal hpo`` processes on the same RDB storage U
 from __future__ import annotations
 
 import multiprocessing
+import time
 from multiprocessing.process import BaseProcess
 from pathlib import Path
 
 import numpy as np
 import optuna
+import torch
 
 from learner.base import PhysicsBase
 from learner.features import FeatureSpec
 from learner.hpo_config import HpoConfig
+from learner.hpo_lock import study_lock
+from learner.hpo_objective import cv_objective
 from learner.hpo_space import SearchSpace
-from learner.hpo_study import make_study, open_storage
+from learner.hpo_study import make_study, open_storage, run_trials
 
 
 def open_study(cfg: HpoConfig, storage: str | Path) -> optuna.Study:
@@ -86,13 +90,6 @@ def _work(
     deadline: float | None,
     threads: int,
 ) -> None:
-    import time
-
-    import torch
-
-    from learner.hpo_objective import cv_objective
-    from learner.hpo_study import lock_path, run_trials
-
     torch.set_num_threads(threads)
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     study = open_study(cfg, storage)
@@ -100,4 +97,4 @@ def _work(
     if left == 0.0:
         return
     objective = cv_objective(spec, X, Y, space, cfg, base, deadline)
-    run_trials(study, objective, cfg.trials, timeout_s=left, lock=lock_path(storage))
+    run_trials(study, objective, cfg.trials, timeout_s=left, lock=study_lock(storage, cfg.study))
