@@ -21,6 +21,7 @@ from kinematics.identity import check_match, description_for
 from kinematics.model import RobotModel
 from learner.base import (
     DEFAULT_BASE,
+    PhysicsBase,
     check_same_robot,
     data_frame,
     make_base,
@@ -87,6 +88,19 @@ def prepare(
     )
 
 
+def _new_model(
+    p: Prepared,
+    model_cfg: ModelConfig | None,
+    train_cfg: TrainConfig | None,
+    seed: int,
+    base: PhysicsBase | None,
+) -> ErrorModel:
+    """A fresh model for prepared data (default configs where none is given)."""
+    return ErrorModel.create(
+        p.spec, model_cfg or ModelConfig(), train_cfg or TrainConfig(seed=seed), seed, p.robot, base
+    )
+
+
 @dataclass(frozen=True, kw_only=True)
 class TrainResult:
     model: ErrorModel
@@ -112,14 +126,7 @@ def train_on_dataset(
     p = prepare(ds, test_fraction=test_fraction, seed=seed)
     train = np.sort(p.train)
     physics = make_base(base, p.spec, p.X[train], p.Y[train], data_frame(ds))
-    model = ErrorModel.create(
-        p.spec,
-        model_cfg or ModelConfig(),
-        train_cfg or TrainConfig(seed=seed),
-        seed,
-        p.robot,
-        base=physics,
-    )
+    model = _new_model(p, model_cfg, train_cfg, seed, physics)
     report = model.fit(p.X[p.train], p.Y[p.train], on_epoch=on_epoch)
     test = accuracy_report(model, p.X[p.test], p.Y[p.test]) if len(p.test) else None
     model.metrics = {} if test is None else test.to_dict()
@@ -169,15 +176,7 @@ def continual_on_dataset(
             physics = make_base(base, p.spec, p.X[:0], p.Y[:0], data_frame(ds))
         elif base is not None:
             cfg = replace(cfg, base=base)
-        model = ErrorModel.create(
-            p.spec,
-            model_cfg or ModelConfig(),
-            train_cfg or TrainConfig(seed=seed),
-            seed,
-            p.robot,
-            base=physics,
-        )
-        learner = ContinualLearner(model, cfg)
+        learner = ContinualLearner(_new_model(p, model_cfg, train_cfg, seed, physics), cfg)
     else:
         learner = start
         p = prepare(ds, test_fraction=test_fraction, seed=seed, spec=learner.model.spec)
