@@ -10,6 +10,7 @@ import pytest
 import torch
 from optuna.trial import TrialState
 
+from kinematics.dataset import write_dataset
 from learner.config import ModelConfig, TrainConfig
 from learner.hpo import HpoConfig, cv_folds, dataset_arrays, search
 from learner.hpo_batched import fold_batch_size, train_folds
@@ -18,6 +19,7 @@ from learner.hpo_objective import cv_objective
 from learner.hpo_space import SearchSpace
 from learner.hpo_study import make_study, open_storage, run_trials
 from learner.model import ErrorModel
+from stream.cli import main
 from tests.learner.test_hpo import TINY, toy_dataset
 
 optuna.logging.set_verbosity(optuna.logging.WARNING)
@@ -109,3 +111,19 @@ def test_timeout_stops_a_running_trial(arrays, tmp_path):
     run_trials(study, objective, cfg.trials, timeout_s=1.0)
     assert time.monotonic() - start < 10.0  # 100,000 epochs would take hours
     assert [t.state for t in study.trials] == [TrialState.PRUNED]
+
+
+@pytest.mark.parametrize(
+    "extra, match",
+    [
+        (["--trials", "0"], "hpo.trials must be an int >= 1, got 0"),
+        (["--workers", "0"], "--workers must be >= 1, got 0"),
+        (["--trial-work", "0"], "hpo.trial_work must be > 0"),
+        (["--storage", "notadb://x"], "storage notadb://x: cannot open"),
+    ],
+)
+def test_cli_bad_input_is_one_line_exit_2(tmp_path, capsys, extra, match):
+    data = write_dataset(toy_dataset(20), tmp_path / "d.parquet")
+    code = main(["hpo", "--data", str(data), "--storage", str(tmp_path / "s.journal"), *extra])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and match in err[0], err
