@@ -110,7 +110,11 @@ class _Call:
 class Worker:
     """A thread that calls ``handle(item)`` for each queued item; ``stop()`` drains and joins.
 
-    ``idle(now)`` is called at least every ``tick_s`` (periodic work: flush, diagnostics).
+    ``idle(now)`` is called at least every ``tick_s`` (periodic work: flush, diagnostics). An
+    exception that escapes ``handle`` or ``idle`` is fatal: it is kept in :attr:`error` and the
+    thread ends (the owner's supervisor reports it and stops the process). At most
+    ``max_queue`` items wait; beyond that new samples are dropped and counted in
+    :attr:`overflow`.
     """
 
     def __init__(
@@ -119,18 +123,31 @@ class Worker:
         handle: Callable[[Received], None],
         idle: Callable[[float], None] | None = None,
         tick_s: float = 0.2,
+        max_queue: int = 200_000,
     ) -> None:
-        self.queue: queue.Queue[Received | None] = queue.Queue()
+        self.name = name
+        self.queue: queue.Queue[Received | None] = queue.Queue(max_queue)
         self._handle = handle
         self._idle = idle
         self._tick = tick_s
+        self._abort = threading.Event()
         self.error: BaseException | None = None
+        self.overflow = 0
+        self.abandoned = 0
         self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
         self._thread.start()
 
+    @property
+    def alive(self) -> bool:
+        """Whether the thread still runs."""
+        return self._thread.is_alive()
+
     def callback(self, sample: zenoh.Sample) -> None:
-        """The Zenoh subscriber callback: enqueue only."""
-        self.queue.put(_to_received(sample))
+        """The Zenoh subscriber callback: enqueue only (drop and count when full)."""
+        try:
+            self.queue.put_nowait(_to_received(sample))
+        except queue.Full:
+            self.overflow += 1
 
     def _loop(self) -> None:
         next_idle = time.monotonic() + self._tick
@@ -142,6 +159,11 @@ class Worker:
             try:
                 if item is None:
                     break
+                if self._abort.is_set():
+                    if isinstance(item, _Call):
+                        item.done.set()
+                    self.abandoned += item is not ...
+                    continue
                 if isinstance(item, _Call):
                     try:
                         item.fn()
@@ -152,35 +174,48 @@ class Worker:
                 if self._idle is not None and time.monotonic() >= next_idle:
                     next_idle = time.monotonic() + self._tick
                     self._idle(time.time())
-            except Exception as exc:  # kept for the owner to re-raise; the thread ends
+            except BaseException as exc:  # fatal: kept for the supervisor; the thread ends
                 self.error = exc
-                raise
+                return
             finally:
                 if item is not ...:
                     self.queue.task_done()
 
     def call(self, fn: Callable[[], None], timeout_s: float = 60.0) -> None:
         """Run ``fn`` on the worker thread after what is queued; wait for it."""
+        if self.error is not None or not self.alive:
+            raise RuntimeError(f"worker {self.name} is not running ({self.error!r})")
         call = _Call(fn, threading.Event())
         self.queue.put(call)
-        if not call.done.wait(timeout_s) and self.error is None:
-            raise TimeoutError(f"worker did not run the call within {timeout_s} s")
-        if self.error is not None:
-            raise self.error
+        deadline = time.monotonic() + timeout_s
+        while not call.done.wait(0.05):
+            if self.error is not None or not self.alive:
+                raise RuntimeError(f"worker {self.name} ended ({self.error!r})")
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"worker did not run the call within {timeout_s} s")
 
     def drain(self, timeout_s: float = 30.0) -> bool:
-        """Wait until every enqueued item is handled; False on timeout."""
+        """Wait until every enqueued item is handled; False on timeout or a dead thread."""
         deadline = time.monotonic() + timeout_s
         while self.queue.unfinished_tasks and time.monotonic() < deadline:
-            if self.error is not None:
-                raise self.error
+            if self.error is not None or not self.alive:
+                return False
             time.sleep(0.005)
         return not self.queue.unfinished_tasks
 
-    def stop(self, timeout_s: float = 30.0) -> None:
-        """Handle what is queued, then end the thread."""
-        self.queue.put(None)
-        self._thread.join(timeout_s)
+    def stop(self, timeout_s: float = 30.0) -> bool:
+        """Handle what is queued within ``timeout_s``, abandon the rest (counted in
+        :attr:`abandoned`), end the thread; False when it is still busy with one item."""
+        try:
+            self.queue.put(None, timeout=max(timeout_s, 0.01))
+        except queue.Full:
+            self._abort.set()
+            self.queue.put(None)
+        self._thread.join(max(timeout_s, 0.0))
+        if self._thread.is_alive():
+            self._abort.set()
+            self._thread.join(1.0)
+        return not self._thread.is_alive()
 
 
 def subscribe(session: zenoh.Session, key_expr: str, worker: Worker) -> zenoh.Subscriber:

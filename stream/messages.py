@@ -4,6 +4,12 @@ Every JSON payload is an object with ``schema`` (``robocal.<stream>``) and ``ver
 (:data:`VERSION`) beside the dataclass fields; SI units (rad, m, s, °C). Source samples carry
 the source time ``t`` (s) and a per-source sequence number ``seq``.
 
+Bounds are part of the schema: a payload larger than :data:`MAX_PAYLOAD_BYTES` (``too_large``)
+or nested deeper than :data:`MAX_DEPTH` (``too_deep``) is refused before it is parsed; ``seq``
+is an int in ``0..MAX_SEQ`` and ``t`` (s) within ``±MAX_TIME_S`` (``out_of_range``); name lists
+are non-empty and unique. Every refusal is a :class:`RejectedMessageError` whose ``reason`` is
+the counter it is dropped under.
+
 Model snapshots are binary: ``u64 little-endian header length | header JSON | safetensors``,
 where the header is a :class:`ModelHeader` (JSON with ``schema``/``version``) and the
 safetensors bytes come from ``learner.snapshot.snapshot_to_bytes`` (weights plus their own
@@ -21,6 +27,7 @@ from __future__ import annotations
 import functools
 import json
 import math
+import re
 import struct
 from collections import Counter
 from dataclasses import MISSING, asdict, dataclass, field, fields
@@ -46,6 +53,14 @@ TEMPERATURE_RANGE_C = (-40.0, 150.0)
 POSITION_LIMIT_M = 100.0
 JOINT_LIMIT_RAD = 4 * math.pi
 QUATERNION_TOLERANCE = 1e-3
+#: Largest JSON payload (bytes) parsed at all; a batch of 1,000 points is about 0.5 MB.
+MAX_PAYLOAD_BYTES = 4_000_000
+#: Deepest JSON nesting parsed (a batch is 4 deep: batch, points, point, list).
+MAX_DEPTH = 8
+#: Largest sequence number and model version (2**53: exact as a JSON number everywhere).
+MAX_SEQ = 2**53
+#: Largest |t| (s) of any sample: beyond the year 2286 is not a time.
+MAX_TIME_S = 1e10
 
 
 class RejectedMessageError(SchemaError):
@@ -129,6 +144,12 @@ class TemperatureSample:
     values: tuple[float, ...]
 
     def check(self) -> None:
+        if not self.names:
+            raise RejectedMessageError("invalid", "a temperature sample needs at least one name")
+        self.check_values()
+
+    def check_values(self) -> None:
+        """The checks without the non-empty rule (a data point may carry no temperatures)."""
         _finite_seq_time(self)
         lo, hi = TEMPERATURE_RANGE_C
         for name, v in zip(self.names, self.values, strict=False):
@@ -142,6 +163,8 @@ class TemperatureSample:
             raise RejectedMessageError(
                 "malformed", f"temperature names must be strings: {self.names}"
             )
+        if len(set(self.names)) != len(self.names):
+            raise RejectedMessageError("invalid", f"temperature names repeat: {self.names}")
         if len(self.names) != len(self.values):
             raise RejectedMessageError(
                 "joint_count", f"{len(self.names)} names, {len(self.values)} values"
@@ -170,18 +193,24 @@ class DataPoint:
         ).check()
         TemperatureSample(
             seq=self.seq, t=self.t, names=self.temperature_names, values=self.temperatures
-        ).check()
+        ).check_values()
 
 
 @dataclass(frozen=True, kw_only=True)
 class Batch:
-    """``n_B`` consecutive data points, numbered from 0 per robot."""
+    """``n_B`` consecutive data points: ``seq`` numbers the batches of one window ``epoch`` (the
+    window's run, ms since 1970, kept across restarts with its state); ``first`` is the index of
+    the batch's first point among every point that window epoch emitted."""
 
     SCHEMA: ClassVar[str] = "robocal.batches"
     seq: int
     points: tuple[DataPoint, ...]
+    epoch: int = 0
+    first: int = 0
 
     def check(self) -> None:
+        for name in ("seq", "epoch", "first"):
+            check_count(name, getattr(self, name))
         for p in self.points:
             p.check()
 
@@ -197,8 +226,11 @@ class ModelHeader:
     t: float
 
     def check(self) -> None:
-        if self.model_version < 0 or self.n_seen < 0:
-            raise RejectedMessageError("out_of_range", "model_version and n_seen must be >= 0")
+        check_count("model_version", self.model_version)
+        check_count("n_seen", self.n_seen)
+        if not isinstance(self.robot, str) or not self.robot:
+            raise RejectedMessageError("malformed", f"robot must be a name, got {self.robot!r}")
+        _check_time(self.t)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -229,16 +261,22 @@ class Metrics:
 
 @dataclass(frozen=True, kw_only=True)
 class Diagnostics:
-    """Per-stage counts of dropped messages by reason and of accepted ones."""
+    """Per-stage counts of dropped messages by reason and of accepted ones, and the last
+    refusal of each kind (e.g. why a model was not adopted)."""
 
     SCHEMA: ClassVar[str] = "robocal.diagnostics"
     stage: str
     accepted: int
     dropped: dict[str, int] = field(default_factory=dict)
     t: float = 0.0
+    refused: dict[str, str] = field(default_factory=dict)
 
     def check(self) -> None:
-        return None
+        check_count("accepted", self.accepted)
+        if not isinstance(self.dropped, dict) or not all(
+            isinstance(v, int) for v in self.dropped.values()
+        ):
+            raise RejectedMessageError("malformed", "diagnostics.dropped must map reasons to ints")
 
 
 Message = TypeVar("Message")
@@ -265,11 +303,43 @@ def encode(msg: Any) -> bytes:
 
 def decode(payload: bytes | str, cls: type[Message]) -> Message:
     """Parse and validate a payload as ``cls``; raise RejectedMessageError (reason)."""
+    return from_dict(parse_json(payload), cls)
+
+
+_BRACKETS = re.compile(rb"[\[\]{}]")
+_STRINGS = re.compile(rb'"(?:[^"\\]|\\.)*"')
+
+
+def parse_json(payload: bytes | str, max_bytes: int = MAX_PAYLOAD_BYTES) -> Any:
+    """``json.loads`` after the size and nesting-depth limits (``too_large``, ``too_deep``)."""
+    data = payload.encode() if isinstance(payload, str) else bytes(payload)
+    if len(data) > max_bytes:
+        raise RejectedMessageError("too_large", f"{len(data)} bytes > limit {max_bytes}")
+    if json_depth(data) > MAX_DEPTH:
+        raise RejectedMessageError("too_deep", f"JSON nested deeper than {MAX_DEPTH}")
     try:
-        raw = json.loads(payload)
-    except (ValueError, UnicodeDecodeError) as exc:
+        return json.loads(data)
+    except (ValueError, UnicodeDecodeError, RecursionError) as exc:
         raise RejectedMessageError("malformed", f"not JSON ({exc.__class__.__name__})") from None
-    return from_dict(raw, cls)
+
+
+def json_depth(data: bytes, stop_at: int = MAX_DEPTH) -> int:
+    """Deepest bracket nesting of JSON text (brackets in strings do not count), linear; stops
+    counting past ``stop_at``.
+
+    >>> json_depth(b'{"a": [1, [2]], "b": "[[["}')
+    3
+    """
+    depth = deepest = 0
+    for m in _BRACKETS.finditer(_STRINGS.sub(b'""', data)):
+        if m.group() in (b"[", b"{"):
+            depth += 1
+            deepest = max(deepest, depth)
+            if deepest > stop_at:
+                break
+        else:
+            depth -= 1
+    return deepest
 
 
 def from_dict(raw: Any, cls: type[Message]) -> Message:
@@ -322,11 +392,24 @@ def _freeze(name: str, value: Any) -> Any:
     return value
 
 
+def check_count(name: str, value: Any) -> None:
+    """An int in ``0..MAX_SEQ`` (a sequence number, version or count), else out_of_range."""
+    if type(value) is not int or not 0 <= value <= MAX_SEQ:
+        raise RejectedMessageError(
+            "out_of_range", f"{name} must be an int in 0..{MAX_SEQ}, got {value!r:.40}"
+        )
+
+
+def _check_time(t: Any) -> None:
+    if type(t) not in _NUMBER or not math.isfinite(t):
+        raise RejectedMessageError("non_finite", f"t is {t!r:.40}")
+    if abs(t) > MAX_TIME_S:
+        raise RejectedMessageError("out_of_range", f"t = {t} s beyond ±{MAX_TIME_S:g} s")
+
+
 def _finite_seq_time(msg: Any) -> None:
-    if not isinstance(msg.seq, int) or isinstance(msg.seq, bool) or msg.seq < 0:
-        raise RejectedMessageError("out_of_range", f"seq must be an int >= 0, got {msg.seq!r}")
-    if not isinstance(msg.t, int | float) or not math.isfinite(msg.t):
-        raise RejectedMessageError("non_finite", f"t is {msg.t!r}")
+    check_count("seq", msg.seq)
+    _check_time(msg.t)
 
 
 def check_finite(name: str, values: tuple, limit: float, length: int | None = None) -> None:
@@ -359,7 +442,7 @@ def decode_model(payload: bytes) -> tuple[ModelHeader, bytes]:
             "malformed", f"model payload of {len(payload)} bytes is too short"
         )
     (n,) = struct.unpack("<Q", payload[:8])
-    if n > len(payload) - 8:
+    if n > min(len(payload) - 8, MAX_PAYLOAD_BYTES):
         raise RejectedMessageError("malformed", f"model header length {n} beyond payload")
     return decode(payload[8 : 8 + n], ModelHeader), bytes(payload[8 + n :])
 
@@ -371,6 +454,7 @@ class DropCounter:
         self.stage = stage
         self.accepted = 0
         self.dropped: Counter[str] = Counter()
+        self.refused: dict[str, str] = {}
 
     def drop(self, reason: str, n: int = 1) -> None:
         self.dropped[reason] += n
@@ -378,7 +462,19 @@ class DropCounter:
     def accept(self, n: int = 1) -> None:
         self.accepted += n
 
+    def refuse(self, kind: str, reason: str, detail: str) -> bool:
+        """Count a refusal (e.g. of a model) under ``reason`` and keep its ``detail`` as the
+        last of its ``kind``; True the first time ``kind`` is refused (log it then, once)."""
+        self.drop(reason)
+        first = kind not in self.refused
+        self.refused[kind] = detail
+        return first
+
     def diagnostics(self, t: float = 0.0) -> Diagnostics:
         return Diagnostics(
-            stage=self.stage, accepted=self.accepted, dropped=dict(self.dropped), t=t
+            stage=self.stage,
+            accepted=self.accepted,
+            dropped=dict(self.dropped),
+            t=t,
+            refused=dict(self.refused),
         )

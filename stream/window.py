@@ -11,8 +11,18 @@ Watermarks: per stream, the highest event time seen minus ``allowed_lateness_s``
 older than its stream's watermark is late and dropped; a tracker sample is resolved once the
 joint watermark has passed ``t_k + joint_tolerance_s`` and the temperature watermark has passed
 ``t_k``. Joint samples are kept until the tracker watermark (at most ``max_buffer_s``) has
-passed them, since tracker samples arrive later. Duplicates (same ``seq``) and time going
-backwards (a higher ``seq`` with an earlier ``t``) are dropped. Every drop is counted by reason.
+passed them, since tracker samples arrive later. Duplicates (same ``seq`` and ``t``) and time
+going backwards (a higher ``seq`` with an earlier ``t``) are dropped; a lower ``seq`` with a
+later ``t`` is a source that restarted and is accepted. Every drop is counted by reason.
+
+No single sample moves a watermark far: a sample more than ``max_ahead_s`` ahead of its stream's
+watermark (of the other streams' before its stream's first) is refused as ``future`` unless
+another stream's watermark is already near it or ``confirm_samples`` consecutive samples of its
+stream agree on the jump (a line that resumes after a pause). Given the receive time, a sample
+more than ``max_ahead_of_clock_s`` ahead of the wall clock is ``future`` too; replays of old
+recordings lie behind the clock and pass. The thermometer names and the tracker frame are pinned
+by the first sample (or ``temperature_names`` in the config); other values are refused
+(``temperature_names``, ``frame``) until ``confirm_samples`` in a row agree on new ones.
 
 >>> j = Joiner(WindowConfig(n_joints=1, require_temperatures=False, allowed_lateness_s=0.0))
 >>> for i in range(30):
@@ -59,6 +69,10 @@ class WindowConfig:
     require_temperatures: bool = True
     max_buffer_s: float = 30.0
     seen_seqs: int = 4096
+    max_ahead_s: float = 60.0
+    max_ahead_of_clock_s: float = 300.0
+    confirm_samples: int = 5
+    temperature_names: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.batch_size < 1:
@@ -78,10 +92,42 @@ class WindowConfig:
             raise ConfigError(
                 f"window.settle_velocity_rad_s must be > 0, got {self.settle_velocity_rad_s}"
             )
+        if not (math.isfinite(self.max_ahead_s) and self.max_ahead_s > 0):
+            raise ConfigError(f"window.max_ahead_s must be > 0, got {self.max_ahead_s}")
+        if not self.max_ahead_of_clock_s >= 0:
+            raise ConfigError(
+                f"window.max_ahead_of_clock_s must be >= 0 (0: off), got "
+                f"{self.max_ahead_of_clock_s}"
+            )
+        if not (isinstance(self.confirm_samples, int) and self.confirm_samples >= 1):
+            raise ConfigError(
+                f"window.confirm_samples must be an int >= 1, got {self.confirm_samples}"
+            )
         if not (math.isfinite(self.allowed_lateness_s) and self.allowed_lateness_s >= 0):
             raise ConfigError(
                 f"window.allowed_lateness_s must be >= 0, got {self.allowed_lateness_s}"
             )
+
+
+class _Pinned:
+    """A value fixed by its first sighting; another one replaces it only after ``confirm``
+    sightings in a row (one message cannot change it, a changed installation can)."""
+
+    def __init__(self, confirm: int, value: object = None) -> None:
+        self.value, self.confirm = value, confirm
+        self._candidate: object = None
+        self._count = 0
+
+    def admit(self, v: object) -> bool:
+        if self.value is None or v == self.value:
+            self.value, self._candidate, self._count = v, None, 0
+            return True
+        self._count = self._count + 1 if v == self._candidate else 1
+        self._candidate = v
+        if self._count >= self.confirm:
+            self.value, self._candidate, self._count = v, None, 0
+            return True
+        return False
 
 
 class _Series:
@@ -93,30 +139,53 @@ class _Series:
         self.high = -math.inf
         self.top_seq = -1
         self.top_t = -math.inf
-        self.seen: set[int] = set()
-        self.order: deque[int] = deque(maxlen=seen)
+        self.seen: set[tuple[int, float]] = set()
+        self.order: deque[tuple[int, float]] = deque(maxlen=seen)
+        self._jump: list[float] = []
 
-    def admit(self, s: Sample, lateness: float) -> str | None:
+    def admit(
+        self, s: Sample, cfg: WindowConfig, others_high: tuple[float, ...] = ()
+    ) -> str | None:
         """The drop reason for ``s``, or None after inserting it in time order."""
-        if s.seq in self.seen:
+        ident = (s.seq, s.t)
+        if ident in self.seen:
             return "duplicate"
-        if (s.seq > self.top_seq and s.t < self.top_t) or (
-            s.seq < self.top_seq and s.t > self.top_t
-        ):
+        if s.seq > self.top_seq and s.t < self.top_t:
             return "time_backwards"
-        if s.t < self.high - lateness:
+        if s.t < self.high - cfg.allowed_lateness_s:
             return "late"
+        if self._too_far_ahead(s.t, cfg, others_high):
+            return "future"
         if len(self.order) == self.order.maxlen:
             self.seen.discard(self.order[0])
-        self.order.append(s.seq)
-        self.seen.add(s.seq)
-        if s.seq > self.top_seq:
+        self.order.append(ident)
+        self.seen.add(ident)
+        if s.t >= self.top_t:
             self.top_seq, self.top_t = s.seq, s.t
         self.high = max(self.high, s.t)
         i = bisect.bisect_right(self.t, s.t)
         self.t.insert(i, s.t)
         self.items.insert(i, s)
         return None
+
+    def _too_far_ahead(self, t: float, cfg: WindowConfig, others_high: tuple[float, ...]) -> bool:
+        """A jump of more than ``max_ahead_s`` that nothing corroborates (yet)."""
+        known = [h for h in others_high if h > -math.inf]
+        ref = self.high if self.high > -math.inf else max(known, default=-math.inf)
+        if ref == -math.inf or t <= ref + cfg.max_ahead_s:
+            self._jump.clear()
+            return False
+        if any(abs(t - h) <= cfg.max_ahead_s for h in known):
+            self._jump.clear()
+            return False  # another stream is already there
+        if self._jump and self._jump[-1] <= t <= self._jump[-1] + cfg.max_ahead_s:
+            self._jump.append(t)
+        else:
+            self._jump = [t]
+        if len(self._jump) >= cfg.confirm_samples:
+            self._jump.clear()
+            return False  # consecutive samples agree: the stream resumed later
+        return True
 
     def evict_before(self, t: float, keep_one: bool = False) -> None:
         i = bisect.bisect_left(self.t, t)
@@ -134,19 +203,23 @@ class Joiner:
         self.counter = counter or DropCounter("window")
         self._series = {name: _Series(cfg.seen_seqs) for name in _STREAM.values()}
         self._horizon = -math.inf
-        self._temperature_names: tuple[str, ...] | None = None
+        self._temperature_names = _Pinned(cfg.confirm_samples, cfg.temperature_names or None)
+        self._fixed_names = bool(cfg.temperature_names)
+        self._frame = _Pinned(cfg.confirm_samples)
 
     @property
     def pending(self) -> int:
         """Tracker samples waiting for their watermarks."""
         return len(self._series["tracker"].items)
 
-    def push(self, sample: Sample) -> list[DataPoint]:
-        """Add one validated sample; return the data points it completes (time order)."""
-        reason = self._precheck(sample)
+    def push(self, sample: Sample, now: float | None = None) -> list[DataPoint]:
+        """Add one validated sample (received at wall-clock ``now``, s since 1970, for live
+        sources); return the data points it completes (time order)."""
+        reason = self._precheck(sample, now)
         stream = _STREAM[type(sample)]
         if reason is None:
-            reason = self._series[stream].admit(sample, self.cfg.allowed_lateness_s)
+            others = tuple(v.high for k, v in self._series.items() if k != stream)
+            reason = self._series[stream].admit(sample, self.cfg, others)
         if reason is not None:
             self.counter.drop(reason)
             return []
@@ -157,16 +230,23 @@ class Joiner:
         """End of stream: resolve every pending tracker sample with what has arrived."""
         return self._resolve(final=True)
 
-    def _precheck(self, s: Sample) -> str | None:
-        if isinstance(s, JointSample) and len(s.q) != self.cfg.n_joints:
+    def _precheck(self, s: Sample, now: float | None) -> str | None:
+        cfg = self.cfg
+        if now is not None and cfg.max_ahead_of_clock_s and s.t > now + cfg.max_ahead_of_clock_s:
+            return "future"
+        if isinstance(s, JointSample) and len(s.q) != cfg.n_joints:
             return "joint_count"
         if isinstance(s, TemperatureSample):
-            if self._temperature_names is None:
-                self._temperature_names = tuple(s.names)
-            elif tuple(s.names) != self._temperature_names:
+            names = tuple(s.names)
+            if self._fixed_names and names != self._temperature_names.value:
                 return "temperature_names"
-        if isinstance(s, TrackerSample) and s.t - self.cfg.settle_window_s < self._horizon:
-            return "late"
+            if not self._temperature_names.admit(names):
+                return "temperature_names"
+        if isinstance(s, TrackerSample):
+            if s.t - cfg.settle_window_s < self._horizon:
+                return "late"
+            if not self._frame.admit(s.frame):
+                return "frame"
         return None
 
     def _resolve(self, final: bool) -> list[DataPoint]:
@@ -237,17 +317,25 @@ class Joiner:
 
 
 class Batcher:
-    """Groups data points into batches of ``batch_size`` (a partial one on flush)."""
+    """Groups data points into batches of ``batch_size`` (a partial one on flush), numbered
+    ``seq`` within ``epoch`` from ``seq``; ``count`` points were batched or pending before."""
 
-    def __init__(self, batch_size: int) -> None:
-        self.batch_size = batch_size
+    def __init__(self, batch_size: int, epoch: int = 0, seq: int = 0, count: int = 0) -> None:
+        self.batch_size, self.epoch = batch_size, epoch
         self._points: list[DataPoint] = []
-        self._seq = 0
+        self._seq = seq
+        self.count = count
+
+    @property
+    def next_seq(self) -> int:
+        """The ``seq`` of the next batch."""
+        return self._seq
 
     def add(self, points: list[DataPoint]) -> list[Batch]:
         out = []
         for p in points:
             self._points.append(p)
+            self.count += 1
             if len(self._points) == self.batch_size:
                 out.append(self._emit())
         return out
@@ -256,7 +344,12 @@ class Batcher:
         return [self._emit()] if self._points else []
 
     def _emit(self) -> Batch:
-        batch = Batch(seq=self._seq, points=tuple(self._points))
+        batch = Batch(
+            seq=self._seq,
+            points=tuple(self._points),
+            epoch=self.epoch,
+            first=self.count - len(self._points),
+        )
         self._seq += 1
         self._points = []
         return batch

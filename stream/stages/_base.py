@@ -2,12 +2,17 @@
 a liveliness token, and queryables answered from their own thread.
 
 A stage's logic lives in pure objects (window.Joiner, learner_core.LearnerCore,
-compensation.compensate); a stage only decodes, calls them and publishes. A message that fails
-validation is counted under its reason, logged at a bounded rate and dropped; the stage runs on.
+compensation.compensate); a stage only decodes, calls them and publishes. No message stops a
+stage: whatever a handler or ``on_idle`` raises is counted under its reason (a
+:class:`RejectedMessageError`'s, ``invalid`` for other errors, ``idle_error`` in ``on_idle``),
+logged at a bounded rate and dropped; the stage runs on. Only resource failures (``OSError``:
+a full disk, a read-only state directory; ``MemoryError``) are fatal: the worker keeps the
+error, its thread ends, and the daemon's supervisor stops the process with one line.
 """
 
 from __future__ import annotations
 
+import contextlib
 import queue
 import threading
 import time
@@ -19,6 +24,18 @@ from kinematics.errors import RobocalError
 from stream.bus import Received, Worker, declare_alive, publisher
 from stream.log import JsonLogger
 from stream.messages import DropCounter, RejectedMessageError, encode, key
+
+
+def is_fatal(exc: BaseException) -> bool:
+    """Whether an error ends the stage: resources (``OSError``, ``MemoryError``) or an exit."""
+    if isinstance(exc, RobocalError):
+        return False
+    return isinstance(exc, OSError | MemoryError) or not isinstance(exc, Exception)
+
+
+def drop_reason(exc: BaseException) -> str:
+    """The drop counter of a non-fatal error: the message's own reason, else ``invalid``."""
+    return exc.reason if isinstance(exc, RejectedMessageError) else "invalid"
 
 
 class Stage:
@@ -58,33 +75,51 @@ class Stage:
     def _handle(self, item: Received) -> None:
         try:
             self.handle(item)
-        except RobocalError as exc:  # bad input: count, log at a bounded rate, go on
-            reason = exc.reason if isinstance(exc, RejectedMessageError) else "invalid"
-            self.counter.drop(reason)
-            self.log.limited(
-                "message_dropped",
-                key=f"{self.name}:{reason}",
-                stage=self.name,
-                robot=self.robot,
-                topic=item.key,
-                reason=reason,
-                detail=str(exc),
-            )
+        except BaseException as exc:  # bad input: count, log at a bounded rate, go on
+            if is_fatal(exc):
+                raise
+            self._dropped(drop_reason(exc), exc, item.key)
+
+    def _dropped(self, reason: str, exc: BaseException, topic: str) -> None:
+        self.counter.drop(reason)
+        detail = str(exc) if isinstance(exc, RobocalError) else f"{type(exc).__name__}: {exc}"
+        self.log.limited(
+            "message_dropped",
+            key=f"{self.name}:{reason}",
+            stage=self.name,
+            robot=self.robot,
+            topic=topic,
+            reason=reason,
+            detail=detail[:300],
+        )
+
+    @property
+    def failure(self) -> BaseException | None:
+        """The fatal error that ended the stage's worker, or None while it runs."""
+        return self.worker.error
 
     def handle(self, item: Received) -> None:
         """Decode and process one received sample."""
         raise NotImplementedError
 
     def _idle(self, now: float) -> None:
-        self.on_idle(now)
-        if now - self._last_diag >= 1.0:
-            self._last_diag = now
-            self.publish_diagnostics(now)
+        try:
+            self.on_idle(now)
+            if now - self._last_diag >= 1.0:
+                self._last_diag = now
+                self.publish_diagnostics(now)
+        except BaseException as exc:
+            if is_fatal(exc):
+                raise
+            self._dropped("idle_error", exc, self.name)
 
     def on_idle(self, now: float) -> None:
         """Periodic work (at least every 0.2 s); a no-op hook by default."""
 
     def publish_diagnostics(self, now: float | None = None) -> None:
+        for reason, n in (("overflow", self.worker.overflow), ("shutdown", self.worker.abandoned)):
+            if n:
+                self.counter.dropped[reason] = n
         self.put("diagnostics", encode(self.counter.diagnostics(now or time.time())))
 
     def drain(self, timeout_s: float = 60.0) -> bool:
@@ -94,24 +129,42 @@ class Stage:
     def finish(self) -> None:
         """Last work before closing (flush, checkpoint); a no-op hook by default."""
 
-    def close(self) -> None:
-        """Stop receiving, handle what is queued, ``finish()``, publish diagnostics, leave."""
+    def unsubscribe(self) -> None:
+        """Stop receiving (what is queued is still handled)."""
         for sub in self._subs:
-            sub.undeclare()
+            _quietly(sub.undeclare)
         self._subs.clear()
-        self.worker.stop()
-        self.finish()
-        self.publish_diagnostics()
+
+    def close(self, timeout_s: float = 60.0) -> BaseException | None:
+        """Stop receiving, handle what is queued within ``timeout_s`` (abandon the rest),
+        ``finish()`` unless the worker is stuck or dead, publish diagnostics, leave. Never
+        raises: returns the fatal error of the worker or of ``finish()``, or None."""
+        self.unsubscribe()
+        stopped = self.worker.stop(timeout_s)
+        failure = self.worker.error
+        if stopped and failure is None:
+            try:
+                self.finish()
+            except Exception as exc:  # a full disk at the last checkpoint: reported, not raised
+                failure = exc
+        if not stopped:
+            self.log.info("stage_abandoned", stage=self.name, robot=self.robot, after_s=timeout_s)
+        _quietly(self.publish_diagnostics)
         for q, qw in self._queryables:
-            q.undeclare()
+            _quietly(q.undeclare)
             qw.stop()
         self._queryables.clear()
         for pub in self._pubs.values():
-            pub.undeclare()
+            _quietly(pub.undeclare)
         self._pubs.clear()
-        self._token.undeclare()
-        if self.worker.error is not None:
-            raise self.worker.error
+        _quietly(self._token.undeclare)
+        return failure
+
+
+def _quietly(fn: Callable[[], object]) -> None:
+    """Call ``fn``; a failure while leaving the bus (session already gone) is ignored."""
+    with contextlib.suppress(Exception):
+        fn()
 
 
 class QueryWorker:
@@ -120,7 +173,7 @@ class QueryWorker:
     def __init__(self, name: str, reply: Callable[[zenoh.Query], None]) -> None:
         self._queue: queue.Queue[zenoh.Query | None] = queue.Queue()
         self._reply = reply
-        self.error: BaseException | None = None
+        self.errors = 0
         self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
         self._thread.start()
 
@@ -132,12 +185,13 @@ class QueryWorker:
             try:
                 self._reply(query)
             except RobocalError as exc:  # a bad request: the asker gets the one-line reason
-                query.reply_err(str(exc).encode())
-            except Exception as exc:  # a bug must not silence the queryable; kept for the owner
-                self.error = exc
-                query.reply_err(f"internal error: {type(exc).__name__}: {exc}".encode())
+                _quietly(lambda e=exc: query.reply_err(str(e).encode()))
+            except Exception as exc:  # any other failure is named too; the queryable goes on
+                self.errors += 1
+                text = f"invalid: {type(exc).__name__}: {exc}"[:300]
+                _quietly(lambda t=text: query.reply_err(t.encode()))
             finally:
-                query.drop()
+                _quietly(query.drop)
 
     def stop(self) -> None:
         self._queue.put(None)
