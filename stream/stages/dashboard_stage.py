@@ -1,4 +1,10 @@
-"""The dashboard stage: metrics, points and models of one robot into a Rerun recording."""
+"""The dashboard stage: metrics, points and models of one robot into a Rerun recording.
+
+A model is drawn only when :class:`~stream.trust.ModelGate` adopts it (as the compensation
+service does). A point is logged only when it fits the robot and the points before it (joint
+count, secondary encoders, thermometers, frame; ``invalid`` otherwise), so one odd point never
+spoils the points logged with it.
+"""
 
 from __future__ import annotations
 
@@ -8,13 +14,14 @@ import zenoh
 from kinematics.model import RobotModel
 from learner.features import dataset_features, dataset_labels
 from learner.model import ErrorModel
-from learner.snapshot import snapshot_from_bytes
 from stream.bus import Received
 from stream.dashboard import Dashboard
 from stream.log import JsonLogger
-from stream.messages import DataPoint, Metrics, decode, decode_model, split_key
+from stream.messages import DataPoint, Metrics, RejectedMessageError, decode, split_key
 from stream.points import points_to_dataset
 from stream.stages._base import Stage
+from stream.stages.compensation_service import adopt
+from stream.trust import ModelGate, ModelTrustConfig
 
 
 class DashboardStage(Stage):
@@ -31,11 +38,14 @@ class DashboardStage(Stage):
         robot_model: RobotModel,
         T_W_0: np.ndarray | None = None,
         logger: JsonLogger | None = None,
+        trust: ModelTrustConfig | None = None,
     ) -> None:
         super().__init__(session, cell, robot, logger)
         self.dashboard, self.robot_model, self.T_W_0 = dashboard, robot_model, T_W_0
+        self.gate = ModelGate(robot, robot_model.description, trust)
         self.model: ErrorModel | None = None
         self._pending: list[DataPoint] = []
+        self._shape: tuple | None = None
         for stream in ("metrics", "points", "model"):
             self.subscribe(stream)
 
@@ -44,11 +54,28 @@ class DashboardStage(Stage):
         if stream == "metrics":
             self.dashboard.log_metrics(decode(item.payload, Metrics))
         elif stream == "points":
-            self._pending.append(decode(item.payload, DataPoint))
+            self._pending.append(self._fits(decode(item.payload, DataPoint)))
         else:
+            adopted = adopt(self, self.gate, item.payload)
+            if adopted is None:
+                return
             self._log_points()  # points before this model are judged by the previous one
-            self.model = snapshot_from_bytes(decode_model(item.payload)[1])
+            self.model = adopted[1]
         self.counter.accept()
+
+    def _fits(self, p: DataPoint) -> DataPoint:
+        """``p`` when it fits the robot and the points before it; ``invalid`` otherwise."""
+        n = self.robot_model.description.n_joints
+        if len(p.q) != n or (p.qs is not None and len(p.qs) != n):
+            raise RejectedMessageError("invalid", f"point seq {p.seq}: not {n} joints")
+        if p.frame == "tracker" and self.T_W_0 is None:
+            raise RejectedMessageError("invalid", "point in the tracker frame without T_W_0")
+        shape = (p.frame, p.qs is None, p.temperature_names)
+        if self._shape is None:
+            self._shape = shape
+        elif shape != self._shape:
+            raise RejectedMessageError("invalid", f"point seq {p.seq}: {shape} != {self._shape}")
+        return p
 
     def on_idle(self, now: float) -> None:
         self._log_points()
