@@ -19,6 +19,7 @@ from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from stream.bus import BusConfig
 from stream.compensation import CompensationConfig
 from stream.learner_core import LearnerStageConfig
+from stream.trust import ModelTrustConfig
 from stream.window import WindowConfig
 
 STAGES = ("window", "learner", "compensation", "dashboard")
@@ -82,11 +83,19 @@ class DaemonConfig:
     compensation: CompensationConfig = field(default_factory=CompensationConfig)
     dashboard: DashboardConfig | None = None
     recorder: RecorderConfig | None = None
+    models: ModelTrustConfig = field(default_factory=ModelTrustConfig)
     checkpoint_dir: str | None = None
     log_per_s: float = 1.0
     torch_threads: int = 1
+    #: SIGTERM/SIGINT to exit (s): queued work is abandoned past it; a watchdog ends the
+    #: process 1.5 s later whatever is stuck.
+    shutdown_timeout_s: float = 7.0
 
     def __post_init__(self) -> None:
+        if not 0.5 <= self.shutdown_timeout_s <= 600:
+            raise ConfigError(
+                f"shutdown_timeout_s must be in 0.5..600, got {self.shutdown_timeout_s}"
+            )
         if not self.cell or "/" in self.cell or "*" in self.cell:
             raise ConfigError(f"cell must be a plain key chunk, got {self.cell!r}")
         if not (isinstance(self.torch_threads, int) and self.torch_threads >= 1):
@@ -143,6 +152,7 @@ def config_from_dict(raw: dict) -> DaemonConfig:
         "compensation": CompensationConfig,
         "dashboard": DashboardConfig,
         "recorder": RecorderConfig,
+        "models": ModelTrustConfig,
     }
     built = {k: _build(cls, raw.pop(k), k) for k, cls in sections.items() if k in raw}
     return _build(DaemonConfig, {**raw, **built, "learner": learner, "robots": robots}, "top level")

@@ -4,14 +4,23 @@ It implements no stage itself. ``start()`` opens the session (or uses the one gi
 stages in data-flow order (recorder first, so it sees everything); ``stop()`` closes them in
 the same order after each has handled what it received: the window sends its partial batch,
 the learner writes its checkpoint, the dashboard flushes, the recorder finishes the MCAP file.
-:func:`run_until_signal` runs until SIGTERM or SIGINT.
+
+:func:`run_until_signal` supervises: it runs until SIGTERM or SIGINT (exit 0) or until a stage
+dies (one ``stage_failed`` line naming the stage and the cause; exit 2 for a resource failure
+such as a full disk or a read-only state directory, else 1), so that systemd restarts it. It
+always ends within ``shutdown_timeout_s`` + 1.5 s: queued work past the timeout is abandoned
+(the last checkpoint stands), the MCAP file is finished, and a watchdog ends the process if
+anything is still stuck. State directories are proved writable before anything starts.
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
 import signal
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +33,7 @@ from stream.bus import open_session
 from stream.config import DaemonConfig, RobotConfig
 from stream.dashboard import Dashboard
 from stream.log import JsonLogger
+from stream.mcap_io import next_free_path
 from stream.stages import (
     CompensationService,
     DashboardStage,
@@ -32,6 +42,10 @@ from stream.stages import (
     Stage,
     WindowStage,
 )
+from stream.state import StateDirError, check_writable, describe_os_error
+
+#: Exit codes: a stage died of a resource failure (disk, permissions), or of anything else.
+EXIT_RESOURCE, EXIT_STAGE = 2, 1
 
 
 class Daemon:
@@ -51,11 +65,32 @@ class Daemon:
         self.windows: dict[str, WindowStage] = {}
         self.learners: dict[str, LearnerStage] = {}
         self.dashboards: dict[str, Dashboard] = {}
+        #: The files this start records into (a new one per start): ``mcap``, ``rrd/<robot>``.
+        self.recordings: dict[str, str] = {}
 
     def start(self) -> Daemon:
+        """Check the state directories, open the session and the stages; on any failure the
+        stages already open are closed again before the error is raised."""
         cfg = self.cfg
         # Small MLPs train fastest on one thread; more threads spin against the stages' threads.
         torch.set_num_threads(cfg.torch_threads)
+        if cfg.checkpoint_dir is not None:
+            check_writable(cfg.checkpoint_dir, "checkpoint_dir")
+        if cfg.recorder is not None:
+            check_writable(Path(cfg.recorder.path).parent, "recorder directory")
+        if cfg.dashboard is not None and cfg.dashboard.rrd:
+            check_writable(Path(cfg.dashboard.rrd).parent, "dashboard rrd directory")
+        try:
+            self._start_stages()
+        except BaseException as exc:
+            self.stop(timeout_s=5.0)
+            if isinstance(exc, OSError):
+                raise StateDirError(f"cannot start: {describe_os_error(exc)}") from None
+            raise
+        return self
+
+    def _start_stages(self) -> None:
+        cfg = self.cfg
         if self.session is None:
             self.session = open_session(cfg.bus)
         if cfg.recorder is not None:
@@ -70,27 +105,47 @@ class Daemon:
             )
         for robot in cfg.robots:
             self._start_robot(robot)
-        self.log.info("daemon_started", cell=cfg.cell, stages=[s.name for s in self.stages])
-        return self
+        for st in self.stages:
+            if isinstance(st, RecorderStage):
+                self.recordings["mcap"] = str(st.recorder.path)
+        self.log.info(
+            "daemon_started",
+            cell=cfg.cell,
+            stages=[s.name for s in self.stages],
+            recordings=self.recordings,
+        )
 
     def _start_robot(self, rc: RobotConfig) -> None:
         cfg, s = self.cfg, self.session
         desc = load_description(rc.description)
         T_W_0 = None if rc.T_W_0 is None else np.asarray(rc.T_W_0, dtype=float)
+        state = None if cfg.checkpoint_dir is None else Path(cfg.checkpoint_dir)
         if "window" in rc.stages:
-            self.windows[rc.name] = WindowStage(s, cfg.cell, rc.name, cfg.window, self.log)
+            wcfg = replace(cfg.window, n_joints=desc.n_joints)  # the description decides
+            self.windows[rc.name] = WindowStage(
+                s,
+                cfg.cell,
+                rc.name,
+                wcfg,
+                self.log,
+                state_path=None if state is None else state / f"{rc.name}.window.json",
+            )
             self.stages.append(self.windows[rc.name])
         if "learner" in rc.stages:
-            ckpt = None
-            if cfg.checkpoint_dir is not None:
-                ckpt = Path(cfg.checkpoint_dir) / f"{rc.name}.checkpoint.safetensors"
+            ckpt = None if state is None else state / f"{rc.name}.checkpoint.safetensors"
             stage = LearnerStage(s, cfg.cell, rc.name, desc, cfg.learner, T_W_0, ckpt, self.log)
             self.learners[rc.name] = stage
             self.stages.append(stage)
         if "compensation" in rc.stages:
             self.stages.append(
                 CompensationService(
-                    s, cfg.cell, rc.name, RobotModel(desc), cfg.compensation, self.log
+                    s,
+                    cfg.cell,
+                    rc.name,
+                    RobotModel(desc),
+                    cfg.compensation,
+                    self.log,
+                    trust=cfg.models,
                 )
             )
         if "dashboard" in rc.stages:
@@ -103,14 +158,23 @@ class Daemon:
             rrd = Path(dc.rrd)
             if len(self.cfg.robots) > 1:
                 rrd = rrd.with_name(f"{rrd.stem}_{rc.name}{rrd.suffix}")
+            rrd = next_free_path(rrd)  # never overwrite an earlier run's recording
             dash.save(rrd)
+            self.recordings[f"rrd/{rc.name}"] = str(rrd)
         if dc.serve:
             self.log.info("dashboard_served", url=dash.serve(dc.web_port, dc.grpc_port))
         if dc.connect:
             dash.connect(dc.connect)
         self.dashboards[rc.name] = dash
         return DashboardStage(
-            self.session, self.cfg.cell, rc.name, dash, RobotModel(desc), T_W_0, self.log
+            self.session,
+            self.cfg.cell,
+            rc.name,
+            dash,
+            RobotModel(desc),
+            T_W_0,
+            self.log,
+            trust=self.cfg.models,
         )
 
     def end_of_stream(
@@ -130,37 +194,104 @@ class Daemon:
             if stage.name != "recorder":
                 stage.drain(timeout_s)
 
-    def stop(self) -> None:
-        """Close every stage in data-flow order, then the session (if the daemon opened it)."""
+    def failed_stage(self) -> Stage | None:
+        """The first stage whose worker died, or None."""
+        return next((st for st in self.stages if st.failure is not None), None)
+
+    def stop(self, timeout_s: float = 600.0) -> dict[str, BaseException]:
+        """Close every stage in data-flow order within ``timeout_s`` (queued work past it is
+        abandoned), then the session (if the daemon opened it). Never raises: returns the
+        fatal errors by stage (``name/robot``)."""
+        deadline = time.monotonic() + timeout_s
+        reserve = min(2.0, timeout_s / 4)  # kept for the stages after the learner
         order = ["window", "learner", "compensation", "dashboard", "recorder"]
+        failures: dict[str, BaseException] = {}
+        for stage in self.stages:
+            stage.unsubscribe()  # nothing new comes in while the queues are worked off
         for stage in sorted(self.stages, key=lambda st: order.index(st.name)):
-            stage.drain()
-            if stage.name == "window":
-                stage.end_of_stream()
-            stage.close()
+            keep = 0.0 if stage.name == "recorder" else reserve
+            left = max(deadline - time.monotonic() - keep, 0.5)
+            if isinstance(stage, WindowStage) and stage.failure is None:
+                try:
+                    stage.drain(left)
+                    stage.end_of_stream(timeout_s=left)
+                except Exception as exc:  # noqa: BLE001 - reported, the others still close
+                    failures[f"{stage.name}/{stage.robot}"] = exc
+            error = stage.close(timeout_s=max(deadline - time.monotonic() - keep, 0.5))
+            if error is not None:
+                failures[f"{stage.name}/{stage.robot}"] = error
         for dash in self.dashboards.values():
-            dash.close()
+            try:
+                dash.close()
+            except Exception as exc:  # noqa: BLE001
+                failures["dashboard"] = exc
         self.log.info("daemon_stopped", suppressed_logs=self.log.suppressed)
         self.stages.clear()
         if self._own_session and self.session is not None:
-            self.session.close()
+            with contextlib.suppress(Exception):
+                self.session.close()
             self.session = None
+        return failures
+
+
+def exit_code(error: BaseException) -> int:
+    """2 for a resource failure (OSError, StateDirError, MemoryError), 1 for anything else."""
+    return EXIT_RESOURCE if isinstance(error, OSError | StateDirError | MemoryError) else EXIT_STAGE
+
+
+def cause(error: BaseException) -> str:
+    """One line for a stage's fatal error."""
+    if isinstance(error, OSError):
+        return describe_os_error(error)
+    return f"{type(error).__name__}: {error}"[:300]
+
+
+def _watchdog(log: JsonLogger, after_s: float, code: list[int]) -> threading.Event:
+    """End the process with ``code[0]`` (1 if 0) unless the returned event is set in time."""
+    done = threading.Event()
+
+    def watch() -> None:
+        if not done.wait(after_s):
+            log.log("error", "shutdown_timeout", after_s=after_s)
+            os._exit(code[0] or EXIT_STAGE)
+
+    threading.Thread(target=watch, name="shutdown-watchdog", daemon=True).start()
+    return done
 
 
 def run_until_signal(cfg: DaemonConfig, logger: JsonLogger | None = None) -> int:
-    """Run the daemon until SIGTERM or SIGINT; stop cleanly; return 0."""
+    """Run the daemon until SIGTERM or SIGINT (0) or a stage's death (1, or 2 for a resource
+    failure); always stop within ``cfg.shutdown_timeout_s`` + 1.5 s."""
     stop = threading.Event()
     previous = {
         sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGTERM, signal.SIGINT)
     }
-    daemon = Daemon(cfg, logger=logger).start()
+    daemon = Daemon(cfg, logger=logger)
+    log = daemon.log
+    code = [0]
     try:
-        while not stop.wait(0.5):
-            for stage in daemon.stages:
-                if stage.worker.error is not None:
-                    raise stage.worker.error
+        daemon.start()
+        while not stop.wait(0.2):
+            failed = daemon.failed_stage()
+            if failed is not None:
+                code[0] = exit_code(failed.failure)
+                log.log(
+                    "error",
+                    "stage_failed",
+                    stage=failed.name,
+                    robot=failed.robot,
+                    cause=cause(failed.failure),
+                )
+                break
     finally:
-        daemon.stop()
+        if stop.is_set():
+            log.info("signal_received")
+        _watchdog(log, cfg.shutdown_timeout_s + 1.5, code)  # lives until the process ends
+        failures = daemon.stop(timeout_s=cfg.shutdown_timeout_s)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    return 0
+    for where, error in failures.items():
+        if code[0] == 0:
+            code[0] = exit_code(error)
+            log.log("error", "stage_failed", stage=where, cause=cause(error))
+    return code[0]

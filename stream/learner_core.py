@@ -88,6 +88,9 @@ class LearnerCore:
         self.last_seq = -1
         self.n_points = 0
         self._age: dict[bytes, int] = {}
+        #: Per window run (epoch): its last batch seq learned and the index of the next point
+        #: expected; kept with the checkpoint so a restarted window's batches go on (the stage).
+        self.windows: dict[int, tuple[int, int]] = {}
 
     def spec_for(self, batch: Batch) -> FeatureSpec:
         p = batch.points[0]
@@ -188,6 +191,7 @@ class LearnerCore:
             "schema": CHECKPOINT_SCHEMA,
             "last_seq": self.last_seq,
             "n_points": self.n_points,
+            "windows": [[e, s, f] for e, (s, f) in self.windows.items()],
             "state": state_to_bytes(self.learner.state_dict()).hex(),
         }
         ages = np.array(list(self._age.values()), dtype=np.int64)
@@ -230,6 +234,7 @@ class LearnerCore:
         self._reidentify = False  # the checkpoint is of this cell already
         self.test_x, self.test_y = arrays["test_x"], arrays["test_y"]
         self.last_seq, self.n_points = int(meta["last_seq"]), int(meta["n_points"])
+        self.windows = {int(e): (int(s), int(f)) for e, s, f in meta.get("windows", [])}
         self._age = {
             np.ascontiguousarray(r).tobytes(): int(a)
             for r, a in zip(arrays["age_rows"], arrays["ages"], strict=True)

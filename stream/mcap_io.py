@@ -5,7 +5,9 @@ named ``robocal.<stream>``; model snapshots use ``robocal-model`` (the framed bi
 stream.messages). ``log_time`` is the receive time, ``publish_time`` the source time ``t``
 (ns; the receive time when a payload has none). Chunks are zstd-compressed and indexed; the
 recorder finishes the open chunk every ``flush_interval_s`` so a killed recorder leaves a file
-:func:`read_mcap` can read up to the last flush.
+:func:`read_mcap` can read up to the last flush. A recording is never truncated or overwritten:
+when the configured file exists, the recorder writes the next free ``<stem>.<n><suffix>``
+(:func:`next_free_path`), one file per start.
 """
 
 from __future__ import annotations
@@ -23,7 +25,14 @@ from mcap.writer import Writer
 
 from kinematics.errors import DatasetError
 from stream.bus import BusConfig, open_session, publisher
-from stream.messages import STREAM_TYPES, RejectedMessageError, decode, decode_model, split_key
+from stream.messages import (
+    STREAM_TYPES,
+    RejectedMessageError,
+    decode,
+    decode_model,
+    parse_json,
+    split_key,
+)
 
 MODEL_ENCODING = "robocal-model"
 
@@ -42,21 +51,37 @@ def source_time_ns(key: str, payload: bytes) -> int | None:
     """The source time ``t`` of a payload in ns, or None when it has none or is malformed."""
     try:
         stream = split_key(key)[2]
-        if stream == "model":
-            return int(decode_model(payload)[0].t * 1e9)
-        t = json.loads(payload).get("t")
-        return int(float(t) * 1e9) if t is not None else None
+        t = decode_model(payload)[0].t if stream == "model" else parse_json(payload).get("t")
+        ns = int(float(t) * 1e9) if t is not None else None
     except (RejectedMessageError, ValueError, TypeError, AttributeError, OverflowError):
         return None
+    return ns if ns is not None and 0 <= ns < 2**63 else None
+
+
+def next_free_path(path: str | Path) -> Path:
+    """``path`` when no file is there, else the first free ``<stem>.<n><suffix>`` (n >= 1)."""
+    path = Path(path)
+    n = 0
+    candidate = path
+    while candidate.exists():
+        n += 1
+        candidate = path.with_name(f"{path.stem}.{n}{path.suffix}")
+    return candidate
 
 
 class McapRecorder:
     """A sink: ``add()`` messages, ``flush()`` finished chunks to disk, ``close()`` the file."""
 
     def __init__(self, path: str | Path, flush_interval_s: float = 1.0) -> None:
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._file = self.path.open("wb")
+        self.requested = Path(path)
+        self.requested.parent.mkdir(parents=True, exist_ok=True)
+        while True:  # exclusive create: a file another start made meanwhile is never truncated
+            self.path = next_free_path(self.requested)
+            try:
+                self._file = self.path.open("xb")
+                break
+            except FileExistsError:
+                continue
         self._writer = Writer(self._file, chunk_size=256 * 1024)
         self._writer.start(profile="", library="robocal")
         self._channels: dict[str, int] = {}
@@ -91,7 +116,7 @@ class McapRecorder:
             self._channel(key),
             log_time=log_ns,
             data=payload,
-            publish_time=log_ns if pub_ns is None or pub_ns < 0 else pub_ns,
+            publish_time=log_ns if pub_ns is None else pub_ns,
             sequence=self.count,
         )
         self.count += 1

@@ -4,12 +4,23 @@ Snapshots are published on ``.../model`` as the framed payload of stream.message
 + safetensors); the same payload answers queries on ``.../model`` so a late joiner gets the
 newest model at once. With a checkpoint path, the state is written after every update and
 restored on start (a restart loses no accepted batch).
+
+Batches are numbered by the window per run (``epoch``, ``seq``, ``first``); the stage keeps,
+with the checkpoint, the last ``seq`` and next point index of the newest
+:data:`KEPT_EPOCHS` window runs, and renumbers the batches it learns with its own counter. So a
+restarted window (same epoch, numbering continued; or a new epoch) is never refused as a
+duplicate, a batch already learned is, and a gap in the numbering is reported as points lost.
+A batch whose ``seq`` jumps more than ``max_seq_jump`` ahead, or whose epoch lies ahead of the
+clock, is refused as ``future``. A checkpoint that cannot be written (full disk, read-only
+directory) leaves no temporary file and the previous checkpoint intact, and ends the stage.
 """
 
 from __future__ import annotations
 
 import threading
+import time
 from collections import deque
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -20,8 +31,20 @@ from learner.snapshot import snapshot_to_bytes
 from stream.bus import Received
 from stream.learner_core import LearnerCore, LearnerStageConfig, Update
 from stream.log import JsonLogger
-from stream.messages import Batch, Metrics, ModelHeader, decode, encode, encode_model
+from stream.messages import (
+    Batch,
+    Metrics,
+    ModelHeader,
+    RejectedMessageError,
+    decode,
+    encode,
+    encode_model,
+)
 from stream.stages._base import Stage
+from stream.state import remove_temporaries
+
+#: Window runs whose numbering the learner remembers (older ones are refused as ``stale``).
+KEPT_EPOCHS = 4
 
 
 class LearnerStage(Stage):
@@ -39,9 +62,14 @@ class LearnerStage(Stage):
         T_W_0: np.ndarray | None = None,
         checkpoint: str | Path | None = None,
         logger: JsonLogger | None = None,
+        max_seq_jump: int = 1000,
+        max_clock_ahead_s: float = 300.0,
     ) -> None:
         super().__init__(session, cell, robot, logger)
         self.core = LearnerCore(desc, cfg, T_W_0)
+        self.max_seq_jump, self.max_clock_ahead_s = max_seq_jump, max_clock_ahead_s
+        self.duplicates = 0
+        self.lost_points = 0
         self.checkpoint_path = None if checkpoint is None else Path(checkpoint)
         self.latest: bytes | None = None
         self.last_update: Update | None = None
@@ -63,12 +91,56 @@ class LearnerStage(Stage):
         return Update(header, snap, self.core.metrics(float("nan"), 0.0, None))
 
     def handle(self, item: Received) -> None:
-        update = self.core.add_batch(decode(item.payload, Batch))
+        batch = decode(item.payload, Batch)
+        lost = self._check_order(batch)
+        core = self.core
+        update = core.add_batch(replace(batch, seq=core.last_seq + 1))
+        core.windows[batch.epoch] = (batch.seq, batch.first + len(batch.points))
+        for old in sorted(core.windows)[:-KEPT_EPOCHS]:
+            del core.windows[old]
         self.counter.accept()
+        if lost:
+            self.lost_points += lost
+            self.counter.drop("lost", lost)
+            self.log.info(
+                "points_lost",
+                robot=self.robot,
+                epoch=batch.epoch,
+                seq=batch.seq,
+                lost=lost,
+                lost_total=self.lost_points,
+            )
         if update is not None:
             self._publish(update)
-            if self.checkpoint_path is not None:
-                self.core.checkpoint(self.checkpoint_path)
+            self._checkpoint()
+
+    def _check_order(self, b: Batch) -> int:
+        """Refuse a batch already learned (``duplicate``), of a forgotten run (``stale``) or
+        implausibly far ahead (``future``); the number of points lost before it."""
+        if b.epoch > (time.time() + self.max_clock_ahead_s) * 1000:
+            raise RejectedMessageError("future", f"batch epoch {b.epoch} ms is ahead of the clock")
+        windows = self.core.windows
+        if b.epoch not in windows and len(windows) >= KEPT_EPOCHS and b.epoch < min(windows):
+            raise RejectedMessageError("stale", f"batch of a forgotten window run {b.epoch}")
+        last_seq, next_first = windows.get(b.epoch, (-1, 0))
+        if b.seq <= last_seq:
+            self.duplicates += 1
+            raise RejectedMessageError("duplicate", f"batch {b.epoch}/{b.seq} already learned")
+        if b.seq > last_seq + self.max_seq_jump or b.first > next_first + self.max_seq_jump**2:
+            raise RejectedMessageError(
+                "future", f"batch seq {b.seq} jumps more than {self.max_seq_jump} past {last_seq}"
+            )
+        return max(b.first - next_first, 0)
+
+    def _checkpoint(self) -> None:
+        """Write the checkpoint; on OSError remove the temporary file and re-raise (fatal)."""
+        if self.checkpoint_path is None:
+            return
+        try:
+            self.core.checkpoint(self.checkpoint_path)
+        except OSError:
+            remove_temporaries(self.checkpoint_path)
+            raise
 
     def _publish(self, update: Update) -> None:
         payload = encode_model(update.header, update.snapshot)
@@ -93,5 +165,4 @@ class LearnerStage(Stage):
             query.reply(self.key("model"), latest)
 
     def finish(self) -> None:
-        if self.checkpoint_path is not None:
-            self.core.checkpoint(self.checkpoint_path)
+        self._checkpoint()

@@ -1,4 +1,5 @@
-"""The recorder stage: everything under ``robocal/<cell>/**`` into an MCAP file."""
+"""The recorder stage: everything under ``robocal/<cell>/**`` into an MCAP file (a new file
+per start, never an old one overwritten; see :class:`~stream.mcap_io.McapRecorder`)."""
 
 from __future__ import annotations
 

@@ -1,14 +1,28 @@
-"""The window stage: source samples of one robot in, data points and batches out."""
+"""The window stage: source samples of one robot in, data points and batches out.
+
+With a state path the window keeps its run epoch, next batch ``seq`` and point count in a small
+JSON file (written atomically after every batch and at most every ``state_every_s`` while points
+arrive), so that after a restart, even a ``kill -9``, its batches continue the numbering the
+learner knows: none is refused as a duplicate, and the learner can count the points lost.
+"""
 
 from __future__ import annotations
 
+import json
+import time
+from pathlib import Path
+
 import zenoh
 
+from kinematics.errors import ConfigError
 from stream.bus import Received
 from stream.log import JsonLogger
-from stream.messages import STREAM_TYPES, decode, encode, split_key
+from stream.messages import STREAM_TYPES, Batch, check_count, decode, encode, split_key
 from stream.stages._base import Stage
+from stream.state import write_atomic
 from stream.window import Batcher, Joiner, WindowConfig
+
+STATE_SCHEMA = "robocal.window_state"
 
 
 class WindowStage(Stage):
@@ -23,14 +37,47 @@ class WindowStage(Stage):
         robot: str,
         cfg: WindowConfig,
         logger: JsonLogger | None = None,
+        state_path: str | Path | None = None,
+        state_every_s: float = 0.5,
     ) -> None:
+        self.state_path = None if state_path is None else Path(state_path)
+        self._state_every = state_every_s
+        epoch, seq, count = self._load_state()
+        self.batcher = Batcher(cfg.batch_size, epoch, seq, count)
+        self._saved = (seq, count)
+        self._saved_at = time.monotonic()
         super().__init__(session, cell, robot, logger)
         self.joiner = Joiner(cfg, self.counter)
-        self.batcher = Batcher(cfg.batch_size)
+        if self.state_path is not None:
+            self._save_state()
+            self.log.info("window_state", robot=robot, epoch=epoch, next_seq=seq, points=count)
         self.points = 0
         self.batches = 0
         for stream in ("joints", "tracker", "temperature"):
             self.subscribe(stream)
+
+    def _load_state(self) -> tuple[int, int, int]:
+        """``(epoch, next batch seq, points)`` from the state file, or a new epoch (ms)."""
+        new = (int(time.time() * 1000), 0, 0)
+        if self.state_path is None or not self.state_path.exists():
+            return new
+        try:
+            raw = json.loads(self.state_path.read_text())
+            if raw.get("schema") != STATE_SCHEMA:
+                raise ValueError(f"schema {raw.get('schema')!r}")
+            values = tuple(raw[k] for k in ("epoch", "next_seq", "points"))
+            for k, v in zip(("epoch", "next_seq", "points"), values, strict=True):
+                check_count(k, v)
+        except (ValueError, KeyError, AttributeError, OSError) as exc:
+            raise ConfigError(f"{self.state_path}: unreadable window state: {exc}") from None
+        return values  # type: ignore[return-value]
+
+    def _save_state(self) -> None:
+        b = self.batcher
+        state = {"schema": STATE_SCHEMA, "epoch": b.epoch, "next_seq": b.next_seq}
+        state["points"] = b.count
+        write_atomic(self.state_path, json.dumps(state).encode())
+        self._saved, self._saved_at = (b.next_seq, b.count), time.monotonic()
 
     @property
     def received(self) -> int:
@@ -39,22 +86,39 @@ class WindowStage(Stage):
 
     def handle(self, item: Received) -> None:
         stream = split_key(item.key)[2]
-        self._emit(self.joiner.push(decode(item.payload, STREAM_TYPES[stream])))
+        sample = decode(item.payload, STREAM_TYPES[stream])
+        self._emit(self.joiner.push(sample, now=item.received_t))
 
     def _emit(self, points: list) -> None:
         for p in points:
             self.put("points", encode(p))
             self.points += 1
         for b in self.batcher.add(points):
-            self.put("batches", encode(b))
-            self.batches += 1
+            self._put_batch(b)
 
-    def end_of_stream(self) -> None:
+    def _put_batch(self, b: Batch) -> None:
+        if self.state_path is not None:  # numbered before it leaves: never reused
+            self._save_state()
+        self.put("batches", encode(b))
+        self.batches += 1
+
+    def on_idle(self, now: float) -> None:
+        if self.state_path is None:
+            return
+        if (self.batcher.next_seq, self.batcher.count) != self._saved and (
+            time.monotonic() - self._saved_at >= self._state_every
+        ):
+            self._save_state()
+
+    def end_of_stream(self, timeout_s: float = 60.0) -> None:
         """Resolve pending tracker samples and send the partial batch (call after drain)."""
-        self.worker.call(self._flush)  # the worker thread owns the joiner
+        self.worker.call(self._flush, timeout_s)  # the worker thread owns the joiner
 
     def _flush(self) -> None:
         self._emit(self.joiner.flush())
         for b in self.batcher.flush():
-            self.put("batches", encode(b))
-            self.batches += 1
+            self._put_batch(b)
+
+    def finish(self) -> None:
+        if self.state_path is not None:
+            self._save_state()
