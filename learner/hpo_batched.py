@@ -2,18 +2,18 @@
 
 :class:`~learner.ensemble.EvidentialEnsemble` already evaluates its heads as batched weight
 tensors ``(H, in, out)``; here a trial's ``K`` folds become ``K`` groups of heads of one such
-ensemble (head ``k * 6 * members + m * 6 + c``: fold ``k``, member ``m``, component ``c``). Every
-mini-batch is drawn from all points; a fold's heads learn only from the rows outside its
-validation fold (a per-fold row mask on the loss), and everything else that couples parameters
-is per fold: label scaling, gradient-norm clipping, the Adam learning rate and its plateau cut,
-skipped non-finite steps and early stopping. Each fold therefore trains as
+ensemble (head ``k * 6 * members + m * 6 + c``: fold ``k``, member ``m``, component ``c``). Each
+step, every fold's heads get ``batch_size`` of that fold's own training rows (each fold shuffles
+its rows every epoch; a head's rows enter its first layer through one ``baddbmm``), so a fold
+never sees its validation rows and no row is computed for nothing. Everything else that couples
+parameters is per fold too: label scaling, gradient-norm clipping, the Adam learning rate and
+its plateau cut, skipped non-finite steps and early stopping. Each fold therefore trains as
 :meth:`learner.model.ErrorModel.fit` would train it alone (same rules, other random draws), in
-one pass instead of ``K``. The mini-batch holds ``ceil(batch_size * K / (K - 1))`` rows so that
-each fold sees about ``batch_size`` training rows per step, as it would alone.
+one pass instead of ``K``.
 
-Small networks run several times faster this way (per-step overhead is shared); networks whose
-step is bound by memory traffic over their weights gain little (BENCHMARKS.md, "Hyperparameter
-search").
+Small networks run faster this way (per-step overhead is shared by the folds); networks whose
+step is bound by memory traffic over their weights gain nothing (BENCHMARKS.md,
+"Hyperparameter search").
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ from learner.features import FeatureSpec
 from learner.model import N_LABELS, ErrorModel
 
 _ACTIVATIONS = {"elu": F.elu, "relu": F.relu, "gelu": F.gelu}
+_FLOOR = 1e-6  # as learner.ensemble
 
 #: Gradients are clipped per fold to this total norm (as :mod:`learner.model` does per model).
 MAX_GRAD_NORM = 100.0
@@ -55,16 +56,6 @@ class FoldsReport:
     epochs: int
     train_time_s: float
     net: EvidentialEnsemble | None = field(default=None, repr=False, compare=False)
-
-
-def fold_batch_size(batch_size: int, folds: int, n: int) -> int:
-    """Rows per batched step so that each of ``folds`` folds sees about ``batch_size`` of its
-    training rows (a fold trains on ``(K - 1) / K`` of them).
-
-    >>> fold_batch_size(32, 5, 300), fold_batch_size(64, 2, 100)
-    (40, 100)
-    """
-    return min(n, math.ceil(batch_size * folds / (folds - 1)))
 
 
 def train_folds(
@@ -103,10 +94,12 @@ def train_folds(
         rows = R[train_mask[:, k]]
         std = rows.std(axis=0)
         Ys[:, k] = (R - rows.mean(axis=0)) / np.where(std > 1e-12, std, 1.0)
-    target = torch.as_tensor(np.repeat(Ys[:, :, None, :], M, axis=2).reshape(n, K * per_fold))
-    target = target.float()
-    mask = torch.as_tensor(np.repeat(train_mask, per_fold, axis=1), dtype=torch.float32)
-    validation = _FoldValidation(Xs, target, folds, M)
+    Yt = torch.as_tensor(Ys, dtype=torch.float32)  # (N, K, 6)
+    validation = _FoldValidation(Xs, Yt, folds, M)
+    train_rows = [torch.as_tensor(np.flatnonzero(train_mask[:, k])) for k in range(K)]
+    width = max(r.numel() for r in train_rows)
+    fold_index = torch.arange(K)[:, None]
+    act = _ACTIVATIONS[model_cfg.activation]
     net = EvidentialEnsemble(
         n_inputs=Xs.shape[1],
         hidden_layers=model_cfg.hidden_layers,
@@ -118,7 +111,7 @@ def train_folds(
     )
     opt = _FoldAdam(list(net.parameters()), K, per_fold, train_cfg.lr, train_cfg.weight_decay)
     gen = torch.Generator().manual_seed(train_cfg.seed + seed)
-    bs = fold_batch_size(train_cfg.batch_size, K, n)
+    bs = min(train_cfg.batch_size, width)
     best = np.full(K, np.inf)
     best_epoch = np.zeros(K, dtype=int)
     plateau_best = np.full(K, np.inf)
@@ -126,20 +119,22 @@ def train_folds(
     active = np.ones(K, dtype=bool)
     epoch = 0
     for epoch in range(1, train_cfg.max_epochs + 1):
-        net.train()
-        perm = torch.randperm(n, generator=gen)
-        for i in range(0, n, bs):
+        order, weight = _epoch_order(train_rows, width, gen)
+        for i in range(0, width, bs):
             if deadline is not None and time.monotonic() > deadline:
                 raise TimeoutError(f"deadline passed in epoch {epoch}")
-            idx = perm[i : i + bs]
-            gamma, nu, alpha, beta = net(Xs[idx])
-            y = target[idx]
+            rows, w = order[:, i : i + bs], weight[:, i : i + bs]  # (K, b)
+            b = rows.shape[1]
+            x = Xs[rows].repeat_interleave(per_fold, dim=0)  # (H, b, F): each head its rows
+            y = Yt[rows, fold_index].transpose(1, 2).unsqueeze(1).expand(K, M, N_LABELS, b)
+            y = y.reshape(K * per_fold, b)
+            gamma, nu, alpha, beta = _nig(_forward(net, x, act, model_cfg.dropout, True))
             elem = nig_nll(y, gamma, nu, alpha, beta) + train_cfg.lam * nig_regularizer(
                 y, gamma, nu, alpha
             )
-            m = mask[idx]
-            counts = m.sum(dim=0).clamp(min=1.0) * per_fold
-            fold_loss = ((elem * m).sum(dim=0) / counts).view(K, per_fold).sum(dim=1)
+            counts = w.sum(dim=1).clamp(min=1.0) * per_fold
+            per_head = (elem * w.repeat_interleave(per_fold, dim=0)).sum(dim=1)
+            fold_loss = per_head.view(K, per_fold).sum(dim=1) / counts
             opt.zero_grad()
             finite = torch.isfinite(fold_loss)
             torch.where(finite, fold_loss, torch.zeros_like(fold_loss)).sum().backward()
@@ -171,6 +166,44 @@ def train_folds(
     )
 
 
+def _epoch_order(
+    train_rows: list[torch.Tensor], width: int, gen: torch.Generator
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Each fold's training rows in a fresh random order ``(K, width)``, padded (weight 0) to
+    the largest fold, and the weights ``(K, width)``."""
+    order = torch.zeros((len(train_rows), width), dtype=torch.long)
+    weight = torch.zeros((len(train_rows), width))
+    for k, rows in enumerate(train_rows):
+        order[k, : rows.numel()] = rows[torch.randperm(rows.numel(), generator=gen)]
+        weight[k, : rows.numel()] = 1.0
+    return order, weight
+
+
+def _forward(
+    net: EvidentialEnsemble, x: torch.Tensor, act: Callable, dropout: float, training: bool
+) -> torch.Tensor:
+    """Raw outputs ``(H, b, 4)`` of every head on its own rows ``x`` ``(H, b, F)``."""
+    h = x
+    last = len(net.weights) - 1
+    for i, (w, b) in enumerate(zip(net.weights, net.biases, strict=True)):
+        h = torch.baddbmm(b, h, w)
+        if i < last:
+            h = act(h)
+            if dropout > 0.0 and training:
+                h = F.dropout(h, dropout, True)
+    return h
+
+
+def _nig(out: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """``gamma, nu, alpha, beta`` from raw outputs, as :class:`EvidentialEnsemble` makes them."""
+    return (
+        out[..., 0],
+        F.softplus(out[..., 1]) + _FLOOR,
+        F.softplus(out[..., 2]) + (1.0 + _FLOOR),
+        F.softplus(out[..., 3]) + _FLOOR,
+    )
+
+
 class _FoldValidation:
     """Each fold's heads evaluated on that fold's validation rows only (padded to the largest
     fold; a fifth of evaluating every row with every head at five folds)."""
@@ -178,6 +211,7 @@ class _FoldValidation:
     def __init__(
         self, Xs: torch.Tensor, target: torch.Tensor, folds: list[np.ndarray], M: int
     ) -> None:
+        """``target``: scaled residual labels per fold ``(N, K, 6)``."""
         K, width = len(folds), max(f.size for f in folds)
         rows = np.zeros((K, width), dtype=np.int64)
         valid = np.zeros((K, width), dtype=np.float32)
@@ -187,21 +221,14 @@ class _FoldValidation:
         self.K, self.M = K, M
         # (H, width, F): fold k's rows for each of its heads
         self.x = Xs[torch.as_tensor(rows)].repeat_interleave(per_fold, dim=0)
-        y = target.view(-1, K, M, N_LABELS)[:, :, 0]  # (N, K, 6)
-        self.y = torch.stack([y[torch.as_tensor(rows[k]), k] for k in range(K)])  # (K, W, 6)
+        self.y = torch.stack([target[torch.as_tensor(rows[k]), k] for k in range(K)])  # (K, W, 6)
         self.valid = torch.as_tensor(valid)
         self.count = self.valid.sum(dim=1)
 
     def mse(self, net: EvidentialEnsemble, activation: str) -> np.ndarray:
         """Per fold the validation MSE ``(K,)`` of the members' mean ``gamma`` (scaled units)."""
-        act = _ACTIVATIONS[activation]
         with torch.inference_mode():
-            h = self.x
-            last = len(net.weights) - 1
-            for i, (w, b) in enumerate(zip(net.weights, net.biases, strict=True)):
-                h = torch.baddbmm(b, h, w)
-                if i < last:
-                    h = act(h)
+            h = _forward(net, self.x, _ACTIVATIONS[activation], 0.0, False)
             gamma = h[..., 0].view(self.K, self.M, N_LABELS, -1).mean(dim=1)  # (K, 6, W)
             sq = (gamma.transpose(1, 2) - self.y).square().mean(dim=2)  # (K, W)
             mse = (sq * self.valid).sum(dim=1) / self.count

@@ -13,7 +13,7 @@ from optuna.trial import TrialState
 from kinematics.dataset import write_dataset
 from learner.config import ModelConfig, TrainConfig
 from learner.hpo import HpoConfig, cv_folds, dataset_arrays, search
-from learner.hpo_batched import fold_batch_size, train_folds
+from learner.hpo_batched import train_folds
 from learner.hpo_config import trial_epochs
 from learner.hpo_objective import cv_objective
 from learner.hpo_space import SearchSpace
@@ -99,7 +99,6 @@ def test_epoch_budget_scales_with_data_and_network():
     assert trial_epochs(n_weights=1_000_000, rows=3000, **kw) == pytest.approx(small / 10, abs=1)
     assert trial_epochs(n_weights=10_000_000, rows=300, **kw) == pytest.approx(small / 10, abs=1)
     assert trial_epochs(n_weights=1_000_000, rows=300, **{**kw, "work": float("inf")}) == 10_000
-    assert fold_batch_size(4, 5, 300) == 5
 
 
 def test_timeout_stops_a_running_trial(arrays, tmp_path):
