@@ -249,6 +249,7 @@ class _FoldAdam:
         self.decay = decay
         self.exp_avg = [torch.zeros_like(p) for p in params]
         self.exp_avg_sq = [torch.zeros_like(p) for p in params]
+        self._buf = [torch.empty_like(p) for p in params]
         self.steps = np.zeros(folds, dtype=int)
 
     def zero_grad(self) -> None:
@@ -258,7 +259,7 @@ class _FoldAdam:
     def step(self, allowed: torch.Tensor) -> None:
         """One Adam step for the folds ``allowed`` ``(K,) bool`` whose gradient is finite."""
         grads = [p.grad if p.grad is not None else torch.zeros_like(p) for p in self.params]
-        sq = sum(g.square().sum(dim=tuple(range(1, g.dim()))) for g in grads)
+        sq = sum(torch.linalg.vector_norm(g.flatten(1), dim=1).square() for g in grads)
         norm = sq.view(self.folds, self.per_fold).sum(dim=1).sqrt()  # (K,)
         ok = allowed & torch.isfinite(norm)
         if not bool(ok.any()):
@@ -277,21 +278,25 @@ class _FoldAdam:
         every = bool(ok.all())
         clipped = bool((clip < 1.0).any())
         keep_h = head(ok_np.astype(np.float32))
-        with torch.no_grad():
-            for p, g, m, v in zip(self.params, grads, self.exp_avg, self.exp_avg_sq, strict=True):
+        with torch.no_grad():  # in place on the gradients and one reused buffer: no big temporaries
+            for p, g, m, v, buf in zip(
+                self.params, grads, self.exp_avg, self.exp_avg_sq, self._buf, strict=True
+            ):
                 shape = (-1,) + (1,) * (p.dim() - 1)
                 if not every:
-                    g = torch.nan_to_num(g, nan=0.0, posinf=0.0, neginf=0.0)
+                    g.nan_to_num_(nan=0.0, posinf=0.0, neginf=0.0)
                 if clipped or not every:
-                    g = g * clip_h.view(shape)
+                    g.mul_(clip_h.view(shape))
                 if self.decay:
-                    g = g.add(p, alpha=self.decay)
-                if every:  # the usual step, in place
+                    g.add_(p, alpha=self.decay)
+                if every:  # the usual step
                     m.lerp_(g, 1.0 - b1)
                     v.mul_(b2).addcmul_(g, g, value=1.0 - b2)
                 else:  # a skipped fold keeps its moments
                     keep = keep_h.view(shape)
                     m.add_((g - m) * ((1.0 - b1) * keep))
                     v.add_((g.square() - v) * ((1.0 - b2) * keep))
-                denom = v.sqrt().div_(bc2_h.view(shape)).add_(_EPS)
-                p.addcdiv_(m * size_h.view(shape), denom, value=-1.0)
+                torch.sqrt(v, out=buf)
+                # a skipped fold's step size is 0: m / inf = 0 leaves its weights as they are
+                buf.div_(bc2_h.view(shape)).add_(_EPS).div_(size_h.view(shape))
+                p.addcdiv_(m, buf, value=-1.0)
