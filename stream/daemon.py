@@ -270,7 +270,12 @@ def run_until_signal(cfg: DaemonConfig, logger: JsonLogger | None = None) -> int
     log = daemon.log
     code = [0]
     try:
-        daemon.start()
+        daemon.start()  # a failure here has closed what it opened: one line from the CLI
+    except BaseException:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        raise
+    try:
         while not stop.wait(0.2):
             failed = daemon.failed_stage()
             if failed is not None:

@@ -6,8 +6,8 @@ newest model at once. With a checkpoint path, the state is written after every u
 restored on start (a restart loses no accepted batch).
 
 Batches are numbered by the window per run (``epoch``, ``seq``, ``first``); the stage keeps,
-with the checkpoint, the last ``seq`` and next point index of the newest
-:data:`KEPT_EPOCHS` window runs, and renumbers the batches it learns with its own counter. So a
+with the checkpoint, the last ``seq`` and next point index of the :data:`KEPT_EPOCHS` window
+runs it heard from last, and renumbers the batches it learns with its own counter. So a
 restarted window (same epoch, numbering continued; or a new epoch) is never refused as a
 duplicate, a batch already learned is, and a gap in the numbering is reported as points lost.
 A batch whose ``seq`` jumps more than ``max_seq_jump`` ahead, or whose epoch lies ahead of the
@@ -43,7 +43,7 @@ from stream.messages import (
 from stream.stages._base import Stage
 from stream.state import remove_temporaries
 
-#: Window runs whose numbering the learner remembers (older ones are refused as ``stale``).
+#: Window runs whose numbering the learner remembers (the most recently used ones).
 KEPT_EPOCHS = 4
 
 
@@ -77,7 +77,14 @@ class LearnerStage(Stage):
         self._lock = threading.Lock()
         if self.checkpoint_path is not None and self.checkpoint_path.exists():
             self.core.restore(self.checkpoint_path)
-            self.log.info("checkpoint_restored", robot=robot, version=self.core.learner.version)
+            self.log.info(
+                "checkpoint_restored",
+                robot=robot,
+                version=self.core.learner.version,
+                windows={
+                    e: {"last_seq": s, "next_point": f} for e, (s, f) in self.core.windows.items()
+                },
+            )
             self._publish(self._restored_update())
         self.answer("model", self._reply_latest)
         self.subscribe("batches")
@@ -95,8 +102,9 @@ class LearnerStage(Stage):
         lost = self._check_order(batch)
         core = self.core
         update = core.add_batch(replace(batch, seq=core.last_seq + 1))
+        core.windows.pop(batch.epoch, None)  # most recently used last
         core.windows[batch.epoch] = (batch.seq, batch.first + len(batch.points))
-        for old in sorted(core.windows)[:-KEPT_EPOCHS]:
+        for old in list(core.windows)[:-KEPT_EPOCHS]:
             del core.windows[old]
         self.counter.accept()
         if lost:
@@ -115,14 +123,11 @@ class LearnerStage(Stage):
             self._checkpoint()
 
     def _check_order(self, b: Batch) -> int:
-        """Refuse a batch already learned (``duplicate``), of a forgotten run (``stale``) or
-        implausibly far ahead (``future``); the number of points lost before it."""
+        """Refuse a batch already learned (``duplicate``) or implausibly far ahead
+        (``future``); the number of points lost before it."""
         if b.epoch > (time.time() + self.max_clock_ahead_s) * 1000:
             raise RejectedMessageError("future", f"batch epoch {b.epoch} ms is ahead of the clock")
-        windows = self.core.windows
-        if b.epoch not in windows and len(windows) >= KEPT_EPOCHS and b.epoch < min(windows):
-            raise RejectedMessageError("stale", f"batch of a forgotten window run {b.epoch}")
-        last_seq, next_first = windows.get(b.epoch, (-1, 0))
+        last_seq, next_first = self.core.windows.get(b.epoch, (-1, 0))
         if b.seq <= last_seq:
             self.duplicates += 1
             raise RejectedMessageError("duplicate", f"batch {b.epoch}/{b.seq} already learned")

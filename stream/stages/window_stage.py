@@ -1,9 +1,10 @@
 """The window stage: source samples of one robot in, data points and batches out.
 
 With a state path the window keeps its run epoch, next batch ``seq`` and point count in a small
-JSON file (written atomically after every batch and at most every ``state_every_s`` while points
-arrive), so that after a restart, even a ``kill -9``, its batches continue the numbering the
-learner knows: none is refused as a duplicate, and the learner can count the points lost.
+JSON file, written atomically before the points it counts are sent (one write per joined point;
+joint samples write nothing), so that after a restart, even a ``kill -9``, its batches continue
+the numbering the learner knows: none is refused as a duplicate, and the learner counts exactly
+the points it never learned.
 """
 
 from __future__ import annotations
@@ -38,14 +39,10 @@ class WindowStage(Stage):
         cfg: WindowConfig,
         logger: JsonLogger | None = None,
         state_path: str | Path | None = None,
-        state_every_s: float = 0.5,
     ) -> None:
         self.state_path = None if state_path is None else Path(state_path)
-        self._state_every = state_every_s
         epoch, seq, count = self._load_state()
         self.batcher = Batcher(cfg.batch_size, epoch, seq, count)
-        self._saved = (seq, count)
-        self._saved_at = time.monotonic()
         super().__init__(session, cell, robot, logger)
         self.joiner = Joiner(cfg, self.counter)
         if self.state_path is not None:
@@ -77,7 +74,6 @@ class WindowStage(Stage):
         state = {"schema": STATE_SCHEMA, "epoch": b.epoch, "next_seq": b.next_seq}
         state["points"] = b.count
         write_atomic(self.state_path, json.dumps(state).encode())
-        self._saved, self._saved_at = (b.next_seq, b.count), time.monotonic()
 
     @property
     def received(self) -> int:
@@ -89,26 +85,20 @@ class WindowStage(Stage):
         sample = decode(item.payload, STREAM_TYPES[stream])
         self._emit(self.joiner.push(sample, now=item.received_t))
 
-    def _emit(self, points: list) -> None:
+    def _emit(self, points: list, batches: list[Batch] | None = None) -> None:
+        """Count and number ``points`` (and batch them) in the state file, then send them: a
+        number, once sent, is never sent again."""
+        batches = self.batcher.add(points) + (batches or [])
+        if not (points or batches):
+            return
+        if self.state_path is not None:
+            self._save_state()
         for p in points:
             self.put("points", encode(p))
             self.points += 1
-        for b in self.batcher.add(points):
-            self._put_batch(b)
-
-    def _put_batch(self, b: Batch) -> None:
-        if self.state_path is not None:  # numbered before it leaves: never reused
-            self._save_state()
-        self.put("batches", encode(b))
-        self.batches += 1
-
-    def on_idle(self, now: float) -> None:
-        if self.state_path is None:
-            return
-        if (self.batcher.next_seq, self.batcher.count) != self._saved and (
-            time.monotonic() - self._saved_at >= self._state_every
-        ):
-            self._save_state()
+        for b in batches:
+            self.put("batches", encode(b))
+            self.batches += 1
 
     def end_of_stream(self, timeout_s: float = 60.0) -> None:
         """Resolve pending tracker samples and send the partial batch (call after drain)."""
@@ -116,8 +106,7 @@ class WindowStage(Stage):
 
     def _flush(self) -> None:
         self._emit(self.joiner.flush())
-        for b in self.batcher.flush():
-            self._put_batch(b)
+        self._emit([], self.batcher.flush())
 
     def finish(self) -> None:
         if self.state_path is not None:
