@@ -1,0 +1,137 @@
+"""Compensation refuses what it cannot do: out-of-limit joints, unreachable targets, degenerate
+quaternions and misses all give ``trusted: false`` with a coded reason, never an exception."""
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from kinematics.description import load_description
+from kinematics.model import RobotModel
+from kinematics.transforms import xyz_quat_from_transform
+from learner.config import ModelConfig, TrainConfig
+from learner.features import feature_spec
+from learner.model import ErrorModel
+from stream.compensation import CompensationConfig, CompensationRequest
+from stream.compensation_guard import GuardConfig, guarded_compensate, reach_m
+from stream.messages import RejectedMessageError, decode, encode
+
+CODES = (
+    "joint_limits",
+    "quaternion",
+    "unreachable",
+    "solver",
+    "residual",
+    "corrected_limits",
+    "epistemic",
+)
+
+
+@pytest.fixture(scope="module")
+def fanuc():
+    torch.set_num_threads(1)
+    robot = RobotModel(load_description("fanuc_m900ib700"))
+    spec = feature_spec(robot.description, 1, False, ("ambient",))
+    rng = np.random.default_rng(0)
+    lim = robot.description.limits_rad * 0.5
+    q = rng.uniform(lim[:, 0], lim[:, 1], size=(100, 6))
+    X = np.hstack([q, np.full((100, 1), 20.0)])
+    model = ErrorModel.create(
+        spec, ModelConfig(hidden_layers=1, neurons=16), TrainConfig(max_epochs=20), seed=0
+    )
+    model.fit(X, 1e-3 * np.sin(q))
+    return robot, model
+
+
+def answer(fanuc, **kw):
+    """A request through the wire codec, then the guard (what the service does)."""
+    robot, model = fanuc
+    req = decode(
+        encode(CompensationRequest(temperatures={"ambient": 20.0}, **kw)), CompensationRequest
+    )
+    return guarded_compensate(model, robot, req, CompensationConfig(max_iterations=10), 7)
+
+
+def refused(reply) -> str:
+    assert reply.trusted is False and reply.reason, reply
+    code = reply.reason.split(":", 1)[0]
+    assert code in CODES, reply.reason
+    assert all(np.isfinite(v) for v in (*reply.error, *reply.q_corrected, reply.residual_m))
+    return code
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    joint=st.integers(0, 5),
+    beyond_deg=st.floats(0.5, 300.0),
+    above=st.booleans(),
+)
+def test_joints_outside_the_description_limits_are_never_trusted(fanuc, joint, beyond_deg, above):
+    robot, _ = fanuc
+    lim = robot.description.limits_rad
+    q = np.zeros(6)
+    edge = lim[joint, 1] if above else lim[joint, 0]
+    q[joint] = edge + np.deg2rad(beyond_deg) * (1 if above else -1)
+    if abs(q[joint]) > 4 * np.pi:  # beyond the wire's own bound: an error reply, named
+        with pytest.raises(RejectedMessageError, match="out_of_range"):
+            answer(fanuc, q=tuple(q))
+        return
+    assert refused(answer(fanuc, q=tuple(q))) == "joint_limits"
+
+
+def test_all_joints_at_12_rad_is_refused_not_corrected(fanuc):
+    reply = answer(fanuc, q=(12.0,) * 6)
+    assert refused(reply) == "joint_limits" and reply.q_corrected == (12.0,) * 6
+
+
+@pytest.mark.parametrize("distance", [5.0, 50.0, 99.0])
+def test_unreachable_targets_are_refused(fanuc, distance):
+    robot, _ = fanuc
+    assert reach_m(robot) < 5.0
+    reply = answer(
+        fanuc, q=(0.0,) * 6, target_xyz=(distance, 0.0, 0.0), target_quat=(0.0, 0.0, 0.0, 1.0)
+    )
+    assert refused(reply) == "unreachable"
+
+
+def test_a_reachable_but_missed_target_is_refused_by_its_residual(fanuc):
+    robot, _ = fanuc
+    T = robot.fk(np.array([[0.0, 0.2, -0.3, 0.0, 0.5, 0.0]]))[0]
+    xyz, quat = xyz_quat_from_transform(T)
+    far = xyz[0] + np.array([0.0, 0.0, -1.5])  # inside the reach sphere, out of the workspace
+    reply = answer(fanuc, q=(0.0,) * 6, target_xyz=tuple(far), target_quat=tuple(quat[0]))
+    assert refused(reply) in ("residual", "corrected_limits")
+
+
+@pytest.mark.parametrize(
+    "quat",
+    [(0.0, 0.0, 0.0, 0.0), (1e-9, 0.0, 0.0, 0.0), (0.5, 0.0, 0.0, 0.0), (0.7, 0.7, 0.0, 0.7)],
+)
+def test_degenerate_quaternions_are_refused(fanuc, quat):
+    reply = answer(fanuc, q=(0.0,) * 6, target_xyz=(1.5, 0.0, 1.5), target_quat=quat)
+    assert refused(reply) == "quaternion"
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    q=st.lists(st.floats(-4 * np.pi, 4 * np.pi), min_size=6, max_size=6),
+    xyz=st.none() | st.lists(st.floats(-100, 100), min_size=3, max_size=3),
+    quat=st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4),
+)
+def test_any_request_gets_an_answer_or_a_named_reason(fanuc, q, xyz, quat):
+    kw = {"q": tuple(q)}
+    if xyz is not None:
+        kw |= {"target_xyz": tuple(xyz), "target_quat": tuple(quat)}
+    try:
+        reply = answer(fanuc, **kw)
+    except RejectedMessageError as exc:
+        assert exc.reason in ("out_of_range", "non_finite", "malformed")
+        return
+    if not reply.trusted:
+        refused(reply)
+    else:  # trusted only inside the limits and on target
+        robot, _ = fanuc
+        lim = robot.description.limits_rad
+        assert np.all((lim[:, 0] <= reply.q_corrected) & (reply.q_corrected <= lim[:, 1]))
+        assert reply.residual_m <= GuardConfig().max_residual_m
