@@ -252,3 +252,37 @@ def test_an_unwritable_state_dir_at_start_is_one_line_and_exit_2(tmp_path):
     assert proc.wait(60) == 2
     err = proc.stderr.read().strip().splitlines()
     assert len(err) == 1 and err[0].startswith("robocal: error: checkpoint_dir"), err
+
+
+def test_sigterm_while_the_learner_is_busy_ends_the_daemon_within_10_s(tmp_path):
+    ds = simulate(get_scenario("paper"), 30, 8)
+    robot, port = ds.meta.robot, free_port()
+    cfg = write_config(tmp_path, port, ds)
+    busy = cfg.read_text().replace("init_epochs = 10", "init_epochs = 1000000")
+    cfg.write_text(busy.replace("neurons = 8", "neurons = 256"))
+    proc = start(cfg)
+    client = open_session(BusConfig.loopback(port, listen=False))
+    try:
+        wait_alive(client, 3, proc)
+        batches = []
+        sub = client.declare_subscriber(key("plant", robot, "batches"), lambda s: batches.append(1))
+        Shifted(client, "plant", robot, ds, StreamingConfig(period_s=1.0)).start()
+        deadline = time.monotonic() + 30
+        while len(batches) < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert len(batches) >= 2  # the learner is training its first model, the next waits
+        time.sleep(0.5)
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(15)
+        took = time.monotonic() - t0
+        sub.undeclare()
+    finally:
+        client.close()
+        if proc.poll() is None:
+            proc.kill()
+    events = {e["event"] for e in logs(proc)}
+    assert code == 0 and took < 10.0, (code, took)
+    assert {"signal_received", "daemon_stopped"} <= events
+    with (tmp_path / "plant.mcap").open("rb") as f:
+        assert make_reader(f).get_summary() is not None
