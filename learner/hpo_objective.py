@@ -107,8 +107,20 @@ def _check(trial: optuna.Trial, deadline: float | None, where: str) -> None:
         raise optuna.TrialPruned(f"pruned at {where}")
 
 
-def _batched(trial, spec, X, Y, folds, model_cfg, train_cfg, cfg, base, deadline):
-    """All folds in one batched model; reports the mean over folds every epoch."""
+def _batched(
+    trial: optuna.Trial,
+    spec: FeatureSpec,
+    X: np.ndarray,
+    Y: np.ndarray,
+    folds: list[np.ndarray],
+    model_cfg: ModelConfig,
+    train_cfg: TrainConfig,
+    cfg: HpoConfig,
+    base: PhysicsBase | None,
+    deadline: float | None,
+) -> tuple[list[float], list[int]]:
+    """All folds in one batched model; reports the mean over folds every epoch. Per fold the
+    minimum validation MSE (scaled label units) and its epoch."""
     torch.manual_seed(cfg.seed)  # dropout masks come from torch's global generator
 
     def on_epoch(epoch: int, running: np.ndarray) -> None:
@@ -133,7 +145,18 @@ def _batched(trial, spec, X, Y, folds, model_cfg, train_cfg, cfg, base, deadline
     return list(report.min_val_mse), list(report.best_epochs)
 
 
-def _sequential(trial, spec, X, Y, folds, model_cfg, train_cfg, cfg, base, deadline):
+def _sequential(
+    trial: optuna.Trial,
+    spec: FeatureSpec,
+    X: np.ndarray,
+    Y: np.ndarray,
+    folds: list[np.ndarray],
+    model_cfg: ModelConfig,
+    train_cfg: TrainConfig,
+    cfg: HpoConfig,
+    base: PhysicsBase | None,
+    deadline: float | None,
+) -> tuple[list[float], list[int]]:
     """One fold after the other (fold-major steps); reports the running mean every epoch."""
     mins: list[float] = []
     best_epochs: list[int] = []
