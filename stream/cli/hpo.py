@@ -20,7 +20,7 @@ from learner.hpo import HpoConfig, run_hpo
 from learner.hpo_config import TRIAL_WORK, default_threads
 from learner.hpo_dashboard import start_dashboard
 from learner.hpo_space import SearchSpace, load_space
-from learner.hpo_study import Progress, open_storage
+from learner.hpo_study import Progress, is_url, open_storage
 from stream.cli._base import CLIUsageError, Command, add_base_argument, add_json_flag, emit
 
 
@@ -96,7 +96,8 @@ class HpoCommand(Command):
             raise CLIUsageError(f"--workers must be >= 1, got {args.workers}")
         if args.threads is not None and args.threads < 1:
             raise CLIUsageError(f"--threads must be >= 1, got {args.threads}")
-        open_storage(storage)  # an unreachable or malformed storage fails before any work
+        if is_url(storage):  # an unreachable or malformed database fails before any work
+            open_storage(storage)
         if args.dashboard:
             url = start_dashboard(storage, port=args.dashboard_port)
             print(f"optuna-dashboard on {url}", file=sys.stderr)
