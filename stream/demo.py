@@ -6,7 +6,9 @@ window, learner, compensation, dashboard and recorder stages. Every tenth point 
 the learner stage; the demo reports the uncalibrated error and the learned model's error on
 those held-out points (the newest model fetched by query), and asks the compensation service
 for corrected commands of held-out poses, scored on the simulator's true robot. It writes
-``robocal.rrd``, ``robocal.mcap`` and the JSON-lines log ``robocal.log.jsonl`` into ``out``.
+``robocal.rrd``, ``robocal.mcap`` (or the next free ``robocal.N.*``: recordings are never
+overwritten) and the JSON-lines log ``robocal.log.jsonl`` into ``out``, and reports the paths it
+wrote.
 """
 
 from __future__ import annotations
@@ -201,6 +203,6 @@ def run_demo(
         samples_published=source.published,
         dropped=dropped,
         elapsed_s=time.perf_counter() - start,
-        rrd=str(out / "robocal.rrd"),
-        mcap=str(out / "robocal.mcap"),
+        rrd=daemon.recordings.get(f"rrd/{robot}", str(out / "robocal.rrd")),
+        mcap=daemon.recordings.get("mcap", str(out / "robocal.mcap")),
     )
