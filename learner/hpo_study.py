@@ -97,13 +97,21 @@ def is_url(target: str | Path) -> bool:
 
 
 def open_storage(target: str | Path) -> BaseStorage:
-    """An RDB storage for a URL, else a journal file (created with its folder)."""
+    """An RDB storage for a URL, else a journal file (created with its folder).
+
+    Workers starting together on an empty database race to create Optuna's tables and all
+    but one fail; opening is tried three times (0.5 s apart), the later tries find the tables.
+    """
     if is_url(target):
-        try:
-            return RDBStorage(str(target))
-        except Exception as exc:  # sqlalchemy raises many kinds for a bad URL
-            reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise ConfigError(f"storage {target}: cannot open: {reason}") from None
+        reason = ""
+        for attempt in range(3):
+            try:
+                return RDBStorage(str(target))
+            except Exception as exc:  # sqlalchemy raises many kinds for a bad URL
+                reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+                if attempt < 2:
+                    time.sleep(0.5)
+        raise ConfigError(f"storage {target}: cannot open: {reason}")
     path = Path(target)
     if path.is_dir():
         raise ConfigError(f"storage {path}: expected a journal file, got a folder")
