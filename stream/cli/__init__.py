@@ -29,6 +29,13 @@ def build_parser() -> argparse.ArgumentParser:
     """The full parser; commands with two words (``data summary``) become nested parsers."""
     parser = argparse.ArgumentParser(prog="robocal", description=__doc__.splitlines()[0])
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    parser.add_argument(
+        "--torch-threads",
+        type=int,
+        default=1,
+        help="torch threads for training and prediction (default 1, as the daemon: a shared "
+        "machine runs many times slower with more)",
+    )
     top = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     groups: dict[str, argparse._SubParsersAction] = {}
     for cls in _COMMANDS:
@@ -46,10 +53,20 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _cap_threads(n: int) -> None:
+    """Cap torch's intra-op threads (CLIUsageError below 1)."""
+    if n < 1:
+        raise CLIUsageError(f"--torch-threads must be >= 1, got {n}")
+    import torch  # every learning command imports it anyway; --help does not get here
+
+    torch.set_num_threads(n)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one command; errors become one line on stderr and exit code 2."""
     args = build_parser().parse_args(argv)
     try:
+        _cap_threads(args.torch_threads)
         return args._command.take_action(args)
     except (RobocalError, CLIUsageError) as exc:
         if args.debug:

@@ -145,3 +145,15 @@ def test_a_model_or_base_of_another_robot_stops_with_one_line(data_file, tmp_pat
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert err.startswith("robocal: ") and "temp_link2" in err
+
+
+def test_the_cli_caps_torch_threads(data_file, tmp_path, capsys):
+    argv = ["evaluate", "--model", str(tmp_path / "none.safetensors"), "--data", str(data_file)]
+    assert main(["--torch-threads", "0", *argv]) == 2
+    assert "--torch-threads must be >= 1" in capsys.readouterr().err
+    before = torch.get_num_threads()
+    try:
+        main(["--torch-threads", "2", *argv])  # the model is missing: exit 2, threads set first
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
