@@ -15,26 +15,11 @@ import tempfile
 from pathlib import Path
 
 from kinematics.errors import RobocalError
+from learner.snapshot import atomic_write_bytes as write_atomic  # noqa: F401 (the one writer)
 
 
 class StateDirError(RobocalError):
     """A state directory or file that cannot be written (full disk, read-only, permissions)."""
-
-
-def write_atomic(path: str | Path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` via a temporary file and a rename; on any failure the
-    temporary file is removed and ``path`` keeps its previous content (OSError re-raised)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
 
 
 def remove_temporaries(path: str | Path) -> int:
