@@ -1,13 +1,43 @@
-"""Robot descriptions, pinocchio kinematics, pose errors, frames and the dataset format."""
+"""Robot descriptions, pinocchio kinematics, pose errors, frames and the dataset format.
 
-from kinematics.accuracy import AccuracySummary, accuracy_summary
-from kinematics.dataset import Dataset, DatasetMeta, read_dataset, write_dataset
-from kinematics.description import JointDH, RobotDescription, load_description
-from kinematics.errors import RobocalError
-from kinematics.frames import FrameFit, fit_frames, identify_frames, tracker_to_base
-from kinematics.measurability import MeasurabilityConfig, measurability
-from kinematics.model import RobotModel
-from kinematics.transforms import pose_error
+The names below are imported on first use (PEP 562), so that importing a light submodule such
+as ``kinematics.errors`` does not load pinocchio, pandas and matplotlib (``robocal --help``).
+"""
+
+from __future__ import annotations
+
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from kinematics.accuracy import AccuracySummary, accuracy_summary
+    from kinematics.dataset import Dataset, DatasetMeta, read_dataset, write_dataset
+    from kinematics.description import JointDH, RobotDescription, load_description
+    from kinematics.errors import RobocalError
+    from kinematics.frames import FrameFit, fit_frames, identify_frames, tracker_to_base
+    from kinematics.measurability import MeasurabilityConfig, measurability
+    from kinematics.model import RobotModel
+    from kinematics.transforms import pose_error
+
+_WHERE = {
+    "accuracy": ("AccuracySummary", "accuracy_summary"),
+    "dataset": ("Dataset", "DatasetMeta", "read_dataset", "write_dataset"),
+    "description": ("JointDH", "RobotDescription", "load_description"),
+    "errors": ("RobocalError",),
+    "frames": ("FrameFit", "fit_frames", "identify_frames", "tracker_to_base"),
+    "measurability": ("MeasurabilityConfig", "measurability"),
+    "model": ("RobotModel",),
+    "transforms": ("pose_error",),
+}
+_MODULE = {name: module for module, names in _WHERE.items() for name in names}
+
+
+def __getattr__(name: str) -> Any:
+    """The exported ``name``, importing its submodule on first use."""
+    if name not in _MODULE:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(import_module(f"{__name__}.{_MODULE[name]}"), name)
+
 
 __all__ = [
     "AccuracySummary",

@@ -2,16 +2,49 @@
 
 Depends on ``kinematics`` only. The estimator is :class:`ErrorModel`; continual learning runs
 through :class:`ContinualLearner`; weights travel as safetensors via :mod:`learner.snapshot`.
+The names below are imported on first use (PEP 562), so that importing a light submodule such
+as ``learner.config`` does not load torch (``robocal --help``).
 """
 
-from learner.config import ContinualConfig, ModelConfig, TrainConfig
-from learner.continual import ContinualLearner, UpdateMetrics
-from learner.evidential import Evidential
-from learner.features import FeatureSpec, dataset_features, dataset_labels, feature_spec
-from learner.metrics import AccuracyReport, accuracy_report
-from learner.model import ErrorModel, TrainReport
-from learner.replay import REPLAY_STRATEGIES, ReplayStrategy
-from learner.snapshot import load_snapshot, save_snapshot, snapshot_from_bytes, snapshot_to_bytes
+from __future__ import annotations
+
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from learner.config import ContinualConfig, ModelConfig, TrainConfig
+    from learner.continual import ContinualLearner, UpdateMetrics
+    from learner.evidential import Evidential
+    from learner.features import FeatureSpec, dataset_features, dataset_labels, feature_spec
+    from learner.metrics import AccuracyReport, accuracy_report
+    from learner.model import ErrorModel, TrainReport
+    from learner.replay import REPLAY_STRATEGIES, ReplayStrategy
+    from learner.snapshot import (
+        load_snapshot,
+        save_snapshot,
+        snapshot_from_bytes,
+        snapshot_to_bytes,
+    )
+
+_WHERE = {
+    "config": ("ContinualConfig", "ModelConfig", "TrainConfig"),
+    "continual": ("ContinualLearner", "UpdateMetrics"),
+    "evidential": ("Evidential",),
+    "features": ("FeatureSpec", "dataset_features", "dataset_labels", "feature_spec"),
+    "metrics": ("AccuracyReport", "accuracy_report"),
+    "model": ("ErrorModel", "TrainReport"),
+    "replay": ("REPLAY_STRATEGIES", "ReplayStrategy"),
+    "snapshot": ("load_snapshot", "save_snapshot", "snapshot_from_bytes", "snapshot_to_bytes"),
+}
+_MODULE = {name: module for module, names in _WHERE.items() for name in names}
+
+
+def __getattr__(name: str) -> Any:
+    """The exported ``name``, importing its submodule on first use."""
+    if name not in _MODULE:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(import_module(f"{__name__}.{_MODULE[name]}"), name)
+
 
 __all__ = [
     "REPLAY_STRATEGIES",
