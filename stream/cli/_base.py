@@ -8,8 +8,6 @@ import json
 import sys
 from typing import Any
 
-import numpy as np
-
 from learner.config import BASE_KINDS, DEFAULT_BASE
 
 
@@ -45,6 +43,8 @@ def emit(result: dict[str, Any], as_json: bool, text: str) -> None:
 
 
 def _jsonable(value: Any) -> Any:
+    import numpy as np  # a result holding arrays has loaded numpy already
+
     if isinstance(value, np.ndarray):
         return value.tolist()
     if isinstance(value, np.generic):

@@ -9,10 +9,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-from tqdm import tqdm
-
-from kinematics.accuracy import summarize_file
-from kinematics.importers.ipa import import_series
 from stream.cli._base import Command, add_json_flag, emit
 
 
@@ -27,6 +23,10 @@ class ImportIpa(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
+        from tqdm import tqdm
+
+        from kinematics.importers.ipa import import_series
+
         with tqdm(total=4, desc="import ipa", unit="stage", file=sys.stderr) as bar:
 
             def stage_done(stage: str) -> None:
@@ -70,6 +70,8 @@ class DataSummary(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
+        from kinematics.accuracy import summarize_file
+
         s = summarize_file(args.file, robot=args.robot, histogram=args.hist)
         text = (
             f"{args.file}: N = {s.n}\n"

@@ -9,11 +9,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-from tqdm import tqdm
-
-from kinematics.calibration import CalibrationConfig
-from kinematics.gap.files import calibrate_from_files, gap_from_files
-from kinematics.gap.workflow import STARTS, GapConfig
 from stream.cli._base import Command, add_json_flag, emit
 
 
@@ -27,7 +22,6 @@ class Gap(Command):
         parser.add_argument(
             "--start",
             default="geometric",
-            choices=tuple(STARTS),
             help="starting model: geometric (calibrated DH + frames) or nominal",
         )
         parser.add_argument("--test-fraction", type=float, default=0.2, help="held-out share")
@@ -37,6 +31,11 @@ class Gap(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
+        from tqdm import tqdm
+
+        from kinematics.gap.files import gap_from_files
+        from kinematics.gap.workflow import GapConfig
+
         config = GapConfig(
             start=args.start, test_fraction=args.test_fraction, seed=args.seed, level=args.level
         )
@@ -85,6 +84,9 @@ class Calibrate(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
+        from kinematics.calibration import CalibrationConfig
+        from kinematics.gap.files import calibrate_from_files
+
         config = CalibrationConfig(rank_rtol=args.rank_rtol)
         result = calibrate_from_files(args.data, args.robot, args.out, config)
         r = result.residual

@@ -10,18 +10,13 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import optuna
-import torch
-from tqdm import tqdm
-
-from kinematics.dataset import read_dataset
-from learner.hpo import HpoConfig, run_hpo
-from learner.hpo_config import TRIAL_WORK, default_threads
-from learner.hpo_dashboard import start_dashboard
-from learner.hpo_space import SearchSpace, load_space
-from learner.hpo_study import Progress, is_url, open_storage
+from learner.hpo_config import TRIAL_WORK, HpoConfig, default_threads
 from stream.cli._base import CLIUsageError, Command, add_base_argument, add_json_flag, emit
+
+if TYPE_CHECKING:
+    from learner.hpo_study import Progress
 
 
 class HpoCommand(Command):
@@ -76,6 +71,16 @@ class HpoCommand(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
+        import optuna
+        import torch
+        from tqdm import tqdm
+
+        from kinematics.dataset import read_dataset
+        from learner.hpo import run_hpo
+        from learner.hpo_dashboard import start_dashboard
+        from learner.hpo_space import SearchSpace, load_space
+        from learner.hpo_study import is_url, open_storage
+
         cfg = HpoConfig(
             trials=args.trials,
             timeout_s=args.timeout,

@@ -11,22 +11,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
 
-from tqdm import tqdm
-
-from kinematics.dataset import read_dataset
 from learner.config import STRATEGIES, ContinualConfig, TrainConfig
-from learner.continual import load_learner
-from learner.experiment import StudyConfig, run_paper_study
-from learner.model import ErrorModel
-from learner.snapshot import load_snapshot
-from learner.workflow import (
-    continual_on_dataset,
-    curve_paths,
-    evaluate_on_dataset,
-    train_on_dataset,
-)
 from stream.cli._base import Command, add_base_argument, add_json_flag, emit
+
+if TYPE_CHECKING:
+    from learner.model import ErrorModel
 
 
 def _report_text(title: str, r: dict) -> str:
@@ -57,6 +48,11 @@ class Train(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
+        from tqdm import tqdm
+
+        from kinematics.dataset import read_dataset
+        from learner.workflow import train_on_dataset
+
         ds = read_dataset(args.data)
         cfg = TrainConfig(seed=args.seed, max_epochs=args.max_epochs)
         with tqdm(total=cfg.max_epochs, desc="train", unit="epoch", file=sys.stderr) as bar:
@@ -112,6 +108,12 @@ class Continual(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
+        from tqdm import tqdm
+
+        from kinematics.dataset import read_dataset
+        from learner.continual import load_learner
+        from learner.workflow import continual_on_dataset, curve_paths
+
         ds = read_dataset(args.data)
         cfg = ContinualConfig(
             memory=args.memory,
@@ -174,6 +176,10 @@ class Evaluate(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
+        from kinematics.dataset import read_dataset
+        from learner.snapshot import load_snapshot
+        from learner.workflow import evaluate_on_dataset
+
         report = evaluate_on_dataset(load_snapshot(args.model), read_dataset(args.data)).to_dict()
         emit(report, args.json, _report_text(f"{args.data} ({report['n']} points)", report))
         return 0
@@ -191,6 +197,11 @@ class ExperimentPaper(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
+        from tqdm import tqdm
+
+        from kinematics.dataset import read_dataset
+        from learner.experiment import StudyConfig, run_paper_study
+
         ds = read_dataset(args.data)
         cfg = StudyConfig.quick(seed=args.seed) if args.quick else StudyConfig(seed=args.seed)
         with tqdm(total=cfg.n_runs, desc="experiment", unit="run", file=sys.stderr) as bar:

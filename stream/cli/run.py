@@ -10,14 +10,7 @@ import argparse
 import sys
 from dataclasses import asdict
 
-from tqdm import tqdm
-
-from stream.bus import BusConfig
 from stream.cli._base import CLIUsageError, Command, add_json_flag, emit
-from stream.config import load_config
-from stream.daemon import run_until_signal
-from stream.demo import run_demo
-from stream.mcap_io import replay_file
 
 
 class RunCommand(Command):
@@ -28,6 +21,9 @@ class RunCommand(Command):
         parser.add_argument("--config", required=True, help="daemon TOML config")
 
     def take_action(self, args: argparse.Namespace) -> int:
+        from stream.config import load_config
+        from stream.daemon import run_until_signal
+
         return run_until_signal(load_config(args.config))
 
 
@@ -44,6 +40,9 @@ class ReplayCommand(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
+        from stream.bus import BusConfig
+        from stream.mcap_io import replay_file
+
         if args.speed is not None and not args.speed > 0:
             raise CLIUsageError(f"--speed must be > 0, got {args.speed}")
         bus = BusConfig(connect=tuple(args.connect), multicast_scouting=not args.connect)
@@ -65,6 +64,10 @@ class DemoCommand(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
+        from tqdm import tqdm
+
+        from stream.demo import run_demo
+
         with tqdm(total=args.n, unit="pt", file=sys.stderr, desc="demo") as bar:
             result = run_demo(args.out, args.n, args.seed, lambda k: bar.update(k - bar.n))
         learned, comp = result.learned, result.compensation

@@ -9,9 +9,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-from tqdm import tqdm
-
-from sim_sources import get_scenario, list_scenarios, scenario_from_model, write_campaign
 from stream.cli._base import CLIUsageError, Command, add_json_flag, emit
 
 
@@ -41,6 +38,10 @@ class SimDataset(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
+        from tqdm import tqdm
+
+        from sim_sources import get_scenario, list_scenarios, scenario_from_model, write_campaign
+
         if args.list:
             scenarios = list_scenarios()
             text = "\n".join(f"{name:18s} {summary}" for name, summary in scenarios.items())
