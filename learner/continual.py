@@ -40,7 +40,12 @@ from learner.base import PhysicsBase, identify_base, nominal_base
 from learner.config import ContinualConfig
 from learner.model import MIN_CALIBRATION, ErrorModel, TrainReport
 from learner.replay import replay_strategy
-from learner.snapshot import load_snapshot, snapshot_from_bytes, snapshot_to_bytes
+from learner.snapshot import (
+    load_snapshot,
+    read_metadata,
+    snapshot_from_bytes,
+    snapshot_to_bytes,
+)
 
 STATE_SCHEMA = "robocal.continual"
 
@@ -336,8 +341,7 @@ def state_from_bytes(data: bytes) -> dict:
     """Inverse of :func:`state_to_bytes`; a malformed blob raises :class:`SnapshotError`."""
     try:
         arrays = np_load(data)
-        header_len = int.from_bytes(data[:8], "little")
-        meta = json.loads(json.loads(data[8 : 8 + header_len])["__metadata__"]["robocal"])
+        meta = read_metadata(data)
         if meta.get("schema") != STATE_SCHEMA:
             raise SnapshotError(
                 f"state schema must be {STATE_SCHEMA!r}, got {meta.get('schema')!r}"

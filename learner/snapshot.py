@@ -88,12 +88,19 @@ def snapshot_to_bytes(model: ErrorModel, extra_meta: dict | None = None) -> byte
     return st_save(tensors, metadata={_META_KEY: text})
 
 
+def read_metadata(data: bytes, key: str = _META_KEY) -> dict:
+    """The JSON object under ``key`` in a safetensors blob's ``__metadata__``, read from the
+    header alone (``u64 LE length | header JSON | tensors``); the one header reader of robocal.
+
+    A malformed header raises ValueError, KeyError or TypeError (callers name the file)."""
+    header_len = int.from_bytes(data[:8], "little")
+    return json.loads(json.loads(data[8 : 8 + header_len])["__metadata__"][key])
+
+
 def snapshot_meta(data: bytes) -> dict:
     """The JSON metadata of a snapshot without building the model."""
     try:
-        header_len = int.from_bytes(data[:8], "little")
-        header = json.loads(data[8 : 8 + header_len])
-        meta = json.loads(header["__metadata__"][_META_KEY])
+        meta = read_metadata(data)
     except (ValueError, KeyError, TypeError, IndexError) as exc:
         raise SnapshotError(f"not a robocal snapshot (bad safetensors header: {exc})") from None
     if meta.get("schema") != SCHEMA:

@@ -31,7 +31,7 @@ from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from learner.continual import ContinualLearner, load_learner, state_from_bytes, state_to_bytes
 from learner.features import FeatureSpec, dataset_features, dataset_labels, feature_spec
 from learner.model import ErrorModel
-from learner.snapshot import snapshot_from_bytes, snapshot_to_bytes
+from learner.snapshot import read_metadata, snapshot_from_bytes, snapshot_to_bytes
 from stream.messages import Batch, Metrics, ModelHeader, RejectedMessageError
 from stream.points import points_to_dataset, temperature_column
 
@@ -220,8 +220,7 @@ class LearnerCore:
         try:
             data = path.read_bytes()
             arrays = np_load(data)
-            n = int.from_bytes(data[:8], "little")
-            meta = json.loads(json.loads(data[8 : 8 + n])["__metadata__"]["robocal"])
+            meta = read_metadata(data)
             if meta.get("schema") != CHECKPOINT_SCHEMA:
                 raise SnapshotError(f"{path}: schema {meta.get('schema')!r} is not a checkpoint")
             state = state_from_bytes(bytes.fromhex(meta["state"]))
