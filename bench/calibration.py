@@ -21,8 +21,8 @@ import numpy as np
 from kinematics.calibration import calibrate, residual_stats
 from kinematics.dataset import Dataset
 from kinematics.description import load_description
-from kinematics.gap.conditions import cell_description
 from kinematics.gap.workflow import GapConfig, run_gap, split
+from kinematics.identification.conditions import cell_description
 from kinematics.importers.ipa import import_series
 from kinematics.model import RobotModel
 from sim_sources.cell import simulate

@@ -34,7 +34,7 @@ def one(spec: UnseenSpec, start: str, folder: Path) -> dict:
     """Write the campaign, run ``gap`` on the file; what was named and how far it closed."""
     path, _, truth = write_unseen(spec, folder / f"s{spec.seed}_{spec.hidden}_{spec.magnitude}")
     t0 = time.perf_counter()
-    result, _ = gap_from_files(path, config=GapConfig(start=start, seed=spec.seed))
+    result = gap_from_files(path, config=GapConfig(start=start, seed=spec.seed))
     seconds = time.perf_counter() - t0
     floor = result.noise_floor.mean_m * 1e3
     return {

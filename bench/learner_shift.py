@@ -24,6 +24,7 @@ from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from learner.continual import ContinualLearner, load_learner
 from learner.model import ErrorModel
 from learner.workflow import prepare, train_on_dataset
+from stream.reports.learner import write_trained
 
 
 def prequential(learner: ContinualLearner, X: np.ndarray, Y: np.ndarray, batch: int) -> dict:
@@ -55,7 +56,8 @@ def paper(path: str, rate: float) -> dict:
 def ur10(a: str, b: str, rate: float, folder: Path) -> dict:
     model_path = folder / "a.safetensors"
     if not model_path.exists():
-        train_on_dataset(read_dataset(a), train_cfg=TrainConfig(max_epochs=300), out=model_path)
+        result = train_on_dataset(read_dataset(a), train_cfg=TrainConfig(max_epochs=300))
+        write_trained(result, model_path)
     learner = load_learner(model_path, ContinualConfig(aci_rate=rate))
     p = prepare(read_dataset(b), test_fraction=0.0, spec=learner.model.spec)
     X, Y = p.X, p.Y

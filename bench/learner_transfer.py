@@ -23,6 +23,7 @@ from learner.config import ContinualConfig, TrainConfig
 from learner.continual import load_learner
 from learner.metrics import accuracy_report
 from learner.workflow import prepare, train_on_dataset
+from stream.reports.learner import write_trained
 
 STEPS = (0, 10, 25, 50, 100)
 
@@ -30,9 +31,8 @@ STEPS = (0, 10, 25, 50, 100)
 def transfer(source: str, target: str, seed: int, epochs: int, folder: Path) -> dict:
     model_path = folder / f"source_{seed}.safetensors"
     src = read_dataset(source)
-    result = train_on_dataset(
-        src, seed=seed, train_cfg=TrainConfig(max_epochs=epochs, seed=seed), out=model_path
-    )
+    result = train_on_dataset(src, seed=seed, train_cfg=TrainConfig(max_epochs=epochs, seed=seed))
+    write_trained(result, model_path)
     cfg = ContinualConfig(seed=seed)
     p_src = prepare(src, test_fraction=0.1, seed=seed, spec=result.model.spec)
     epi_src = np.sqrt(result.model.predict(p_src.X[p_src.test]).epistemic()[:, :3]).mean()

@@ -35,17 +35,16 @@ from kinematics.importers.ipa import (
 )
 from kinematics.measurability import measurability_from_poses
 from kinematics.model import RobotModel
-from kinematics.transforms import invert, transform
+from kinematics.transforms import ARCMIN_PER_RAD, invert, transform
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "ur10-ipa"
-ARCMIN = 60.0 * 180.0 / np.pi
 
 
 def deviation(T_a: np.ndarray, T_b: np.ndarray) -> str:
     """Mean/max position (mm) and angle (arcmin) between pose sets."""
     mm = 1e3 * np.linalg.norm(T_a[:, :3, 3] - T_b[:, :3, 3], axis=1)
     am = (
-        ARCMIN
+        ARCMIN_PER_RAD
         * Rotation.from_matrix(T_a[:, :3, :3] @ np.swapaxes(T_b[:, :3, :3], 1, 2)).magnitude()
     )
     return (

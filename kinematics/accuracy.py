@@ -16,14 +16,13 @@ from kinematics.dataset import Dataset, read_dataset, validate
 from kinematics.description import RobotDescription
 from kinematics.identity import description_for
 from kinematics.model import RobotModel
-from kinematics.transforms import pose_error, rotation_angle
-
-ARCMIN_PER_RAD = 60.0 * 180.0 / np.pi
+from kinematics.transforms import ARCMIN_PER_RAD, pose_error, rotation_angle
 
 
 @dataclass(frozen=True, kw_only=True)
 class AccuracySummary:
-    """Position error statistics (mm), orientation error (arcmin) and the per-point errors."""
+    """Position error statistics (mm), orientation error (arcmin), the per-point errors and the
+    robot (description name) they are against."""
 
     n: int
     mean_mm: float
@@ -34,6 +33,7 @@ class AccuracySummary:
     max_arcmin: float
     errors_mm: np.ndarray
     errors_arcmin: np.ndarray
+    robot: str = ""
 
     def to_dict(self) -> dict[str, float | int]:
         """The stable scalar keys of ``robocal data summary --json``."""
@@ -64,35 +64,12 @@ def accuracy_summary(ds: Dataset, desc: RobotDescription) -> AccuracySummary:
         max_arcmin=float(arcmin.max()),
         errors_mm=mm,
         errors_arcmin=arcmin,
+        robot=desc.name,
     )
 
 
-def save_histogram(errors_mm: np.ndarray, path: str | Path, title: str = "") -> Path:
-    """A PNG histogram of position errors (mm), drawn with matplotlib's Agg backend."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    errors_mm = np.asarray(errors_mm, dtype=float)
-    fig = Figure(figsize=(6.0, 4.0), dpi=100)
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot()
-    ax.hist(errors_mm, bins=min(60, max(5, errors_mm.size // 20)), color="tab:blue")
-    ax.axvline(errors_mm.mean(), color="tab:red", label=f"mean {errors_mm.mean():.3f} mm")
-    ax.set_xlabel("position error (mm)")
-    ax.set_ylabel("points")
-    ax.set_title(title or f"uncalibrated position error, N = {errors_mm.size}")
-    ax.legend()
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, format="png")
-    return path
-
-
-def summarize_file(
-    path: str | Path, *, robot: str | None = None, histogram: str | Path | None = None
-) -> AccuracySummary:
-    """Read a dataset, check it against its robot's limits, summarise; optionally plot.
+def summarize_file(path: str | Path, *, robot: str | None = None) -> AccuracySummary:
+    """Read a dataset, check it against its robot's limits and summarise its accuracy.
 
     ``robot`` (a shipped name or TOML path) defaults to the dataset's ``meta.robot``; either
     is matched to the dataset by :func:`kinematics.identity.description_for`.
@@ -100,7 +77,4 @@ def summarize_file(
     ds = read_dataset(path)
     desc = description_for(ds, robot, path)
     validate(ds, str(path), desc.limits_rad)
-    summary = accuracy_summary(ds, desc)
-    if histogram is not None:
-        save_histogram(summary.errors_mm, histogram, title=f"{Path(path).name} on {desc.name}")
-    return summary
+    return accuracy_summary(ds, desc)

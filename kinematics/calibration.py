@@ -33,10 +33,14 @@ from kinematics.effects._base import (
     frame_correction,
 )
 from kinematics.errors import ConfigError, IdentifiabilityError
-from kinematics.gap.conditions import Observations, cell_description, observations_from_dataset
-from kinematics.gap.fitting import fit_effects, jacobian
+from kinematics.identification.conditions import (
+    Observations,
+    cell_description,
+    observations_from_dataset,
+)
+from kinematics.identification.fitting import fit_effects, jacobian
 from kinematics.model import RobotModel
-from kinematics.transforms import rotation_angle
+from kinematics.transforms import ARCMIN_PER_RAD, rotation_angle
 
 _DH_UNITS = ("m", "m", "rad", "rad", "rad")
 FRAME_FIELDS = ("x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad")
@@ -131,7 +135,7 @@ def residual_stats(T_measured: np.ndarray, T_predicted: np.ndarray) -> ResidualS
     """Statistics of measured vs predicted poses ``(N, 4, 4)``."""
     d = np.linalg.norm(T_measured[:, :3, 3] - T_predicted[:, :3, 3], axis=1) * 1e3
     R = np.einsum("nij,nkj->nik", T_measured[:, :3, :3], T_predicted[:, :3, :3])
-    ang = np.rad2deg(rotation_angle(R)) * 60.0
+    ang = ARCMIN_PER_RAD * rotation_angle(R)
     return ResidualStats(
         n=len(d),
         mean_mm=float(d.mean()),

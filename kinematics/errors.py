@@ -31,3 +31,7 @@ class SnapshotError(RobocalError):
 
 class IdentifiabilityError(RobocalError):
     """The data cannot determine the requested parameters (too few or unexciting poses)."""
+
+
+class CLIUsageError(RobocalError):
+    """Command-line arguments that parse but make no sense together."""

@@ -8,7 +8,8 @@ refined by nonlinear least squares over SE(3). Position-only data (a 3-D tracker
 orientation) is supported through :func:`fit_frames_positions`.
 
 >>> import numpy as np
->>> from kinematics.model import RobotModel, load_description
+>>> from kinematics.description import load_description
+>>> from kinematics.model import RobotModel
 >>> from kinematics.transforms import transform_from_xyz_rpy
 >>> m = RobotModel(load_description("ur10"))
 >>> q = np.random.default_rng(0).uniform(-2.0, 2.0, (20, 6))
@@ -30,13 +31,12 @@ from scipy.spatial.transform import Rotation
 from kinematics.errors import ConfigError, IdentifiabilityError
 from kinematics.model import RobotModel
 from kinematics.transforms import (
+    ARCMIN_PER_RAD,
     invert,
     rotation_angle,
     transform,
     vee_skew,
 )
-
-ARCMIN_PER_RAD = 60.0 * 180.0 / np.pi
 
 __all__ = [
     "FitSummary",

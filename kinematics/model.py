@@ -4,6 +4,7 @@ Each joint is a revolute about its local z axis; the fixed part of the DH-Hayati
 ``Tx(a) Tz(d) Rx(alpha) Ry(beta)``, becomes the placement of the next joint (and of the flange
 after the last one). Joint offsets are folded into the placements as ``Rz(offset)``.
 
+>>> from kinematics.description import load_description
 >>> m = RobotModel(load_description("ur10"))
 >>> m.fk(np.zeros((2, 6))).shape
 (2, 4, 4)
@@ -14,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from kinematics.description import JointDH, RobotDescription, load_description  # noqa: F401
+from kinematics.description_types import JointDH, RobotDescription
 
 GRAVITY_M_S2 = np.array([0.0, 0.0, -9.81])
 

@@ -13,6 +13,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+#: Arc minutes per radian: orientation errors are reported in arcmin everywhere.
+ARCMIN_PER_RAD = 60.0 * 180.0 / np.pi
+
 
 def transform(R: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Stack rotations ``(..., 3, 3)`` and positions ``(..., 3)`` into ``(..., 4, 4)``."""

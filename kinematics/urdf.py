@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from kinematics.description import JointDH, RobotDescription
+from kinematics.description_types import JointDH, RobotDescription
 from kinematics.errors import DescriptionError
 from kinematics.model import RobotModel
 from kinematics.transforms import invert

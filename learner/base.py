@@ -42,9 +42,9 @@ from kinematics.dataset import Dataset, DatasetMeta
 from kinematics.description import RobotDescription
 from kinematics.effects import Conditions, Effect, Perturbation, perturbed_poses
 from kinematics.errors import ConfigError, IdentifiabilityError
-from kinematics.gap.conditions import observations_from_dataset
-from kinematics.gap.fitting import fit_effects, jacobian
 from kinematics.gap.model_file import EffectEntry, ModelFile, load_model_file
+from kinematics.identification.conditions import observations_from_dataset
+from kinematics.identification.fitting import fit_effects, jacobian
 from kinematics.model import RobotModel
 from kinematics.transforms import apply_error, invert, pose_error, xyz_quat_from_transform
 from learner.config import BASE_KINDS, DEFAULT_BASE

@@ -1,17 +1,16 @@
 """The reference study of DESIGN.md on one dataset: feature ablation, accuracy against
 training-set size, continual (n_B × N_m) against batch, and the sparse GP benchmark.
 
-Writes ``study.json``, ``study.md`` and ``size.png`` into the output folder; every run uses
-the same seeded 90/10 split, so rows are comparable.
+Returns the rows and their Markdown table (the CLI writes ``study.json``, ``study.md`` and
+``size.png``: ``stream.reports.learner``); every run uses the same seeded 90/10 split, so rows
+are comparable.
 """
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
-from pathlib import Path
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -73,23 +72,22 @@ class StudyConfig:
 
 @dataclass(frozen=True, kw_only=True)
 class StudyResult:
+    """The study's config, one row per run and the Markdown table of the rows."""
+
+    config: StudyConfig
     rows: list[dict] = field(default_factory=list)
     markdown: str = ""
-    out_dir: str = ""
 
     def to_dict(self) -> dict:
-        return {"rows": self.rows, "out_dir": self.out_dir}
+        return {"rows": self.rows}
 
 
 def run_paper_study(
     ds: Dataset,
     cfg: StudyConfig,
-    out_dir: str | Path,
     on_run: Callable[[str], None] | None = None,
 ) -> StudyResult:
-    """Run every part of the study and write its table (Markdown + JSON) and plot."""
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    """Run every part of the study; its rows and Markdown table."""
     note = on_run or (lambda name: None)
     train_cfg = TrainConfig(max_epochs=cfg.max_epochs, seed=cfg.seed)
     rows: list[dict] = []
@@ -150,11 +148,7 @@ def run_paper_study(
             }
         )
         note("sgpr")
-    result = StudyResult(rows=rows, markdown=_markdown(rows, cfg), out_dir=str(out_dir))
-    (out_dir / "study.json").write_text(json.dumps({"config": asdict(cfg), "rows": rows}, indent=1))
-    (out_dir / "study.md").write_text(result.markdown + "\n")
-    _plot_sizes(rows, out_dir / "size.png")
-    return result
+    return StudyResult(config=cfg, rows=rows, markdown=_markdown(rows, cfg))
 
 
 def _continual_row(p, train, Y0, cfg, train_cfg, n_b, n_m) -> dict:
@@ -198,25 +192,3 @@ def _markdown(rows: list[dict], cfg: StudyConfig) -> str:
             f"{np.mean([r['time_s'] for r in rs]):.1f} |"
         )
     return "\n".join(lines)
-
-
-def _plot_sizes(rows: list[dict], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    sizes = sorted({r["n_train"] for r in rows if r["section"] == "size"})
-    if not sizes:
-        return
-    means = [
-        [r["mean_mm"] for r in rows if r["section"] == "size" and r["n_train"] == s] for s in sizes
-    ]
-    fig, ax = plt.subplots(figsize=(5, 3.5))
-    ax.errorbar(sizes, [np.mean(m) for m in means], yerr=[np.std(m) for m in means], marker="o")
-    ax.set_xscale("log")
-    ax.set_xlabel("training points")
-    ax.set_ylabel("test mean position error (mm)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)

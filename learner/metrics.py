@@ -11,9 +11,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from kinematics.transforms import ARCMIN_PER_RAD
 from learner.model import ErrorModel
 
-ARCMIN_PER_RAD = 180.0 * 60.0 / np.pi
 LEVELS = (0.68, 0.90, 0.95)
 
 

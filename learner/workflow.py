@@ -3,14 +3,13 @@
 Each takes a :class:`~kinematics.dataset.Dataset`, builds features and labels against the
 nominal model (with the dataset's ``T_6_S`` when known, or the model's own nominal), splits off
 a seeded test set, identifies the physics base on the training points only (:mod:`learner.base`)
-and returns a typed result; files are written only where a path is given.
+and returns a typed result; the CLI writes models, states and curves (``stream.reports``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 import numpy as np
 
@@ -28,17 +27,10 @@ from learner.base import (
     reidentify_frames,
 )
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
-from learner.continual import (
-    ContinualLearner,
-    UpdateMetrics,
-    state_path,
-    state_to_bytes,
-)
+from learner.continual import ContinualLearner, UpdateMetrics
 from learner.features import FeatureSpec, dataset_feature_spec, dataset_features, dataset_labels
 from learner.metrics import AccuracyReport, accuracy_report
 from learner.model import ErrorModel, TrainReport
-from learner.plots import write_learning_curve
-from learner.snapshot import atomic_write_bytes, save_snapshot
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -103,10 +95,14 @@ def _new_model(
 
 @dataclass(frozen=True, kw_only=True)
 class TrainResult:
+    """The trained model, its training and test reports, and a continual learner whose memory
+    is the worst-predicted training points (saved beside the model, ``continual --from``)."""
+
     model: ErrorModel
     report: TrainReport
     test: AccuracyReport | None
     n_train: int
+    learner: ContinualLearner
 
 
 def train_on_dataset(
@@ -117,12 +113,10 @@ def train_on_dataset(
     model_cfg: ModelConfig | None = None,
     train_cfg: TrainConfig | None = None,
     on_epoch: Callable[[int, float], None] | None = None,
-    out: str | Path | None = None,
     base: str = DEFAULT_BASE,
 ) -> TrainResult:
-    """Batch-train a model on ``base`` (identified on the training split), report its test
-    accuracy and save the snapshot to ``out`` when given, with a continual state beside it
-    whose memory is the worst-predicted training points (so ``continual --from`` goes on)."""
+    """Batch-train a model on ``base`` (identified on the training split) and report its test
+    accuracy; the result's learner remembers the worst-predicted training points."""
     p = prepare(ds, test_fraction=test_fraction, seed=seed)
     train = np.sort(p.train)
     physics = make_base(base, p.spec, p.X[train], p.Y[train], data_frame(ds))
@@ -130,19 +124,18 @@ def train_on_dataset(
     report = model.fit(p.X[p.train], p.Y[p.train], on_epoch=on_epoch)
     test = accuracy_report(model, p.X[p.test], p.Y[p.test]) if len(p.test) else None
     model.metrics = {} if test is None else test.to_dict()
-    if out is not None:
-        save_snapshot(model, out, {"n_train": len(p.train), "epochs": report.epochs})
-        learner = ContinualLearner(model, ContinualConfig(seed=seed))
-        learner.remember(p.X[train], p.Y[train])
-        atomic_write_bytes(state_path(out), state_to_bytes(learner.state_dict()))
-    return TrainResult(model=model, report=report, test=test, n_train=len(p.train))
+    learner = ContinualLearner(model, ContinualConfig(seed=seed))
+    learner.remember(p.X[train], p.Y[train])
+    return TrainResult(model=model, report=report, test=test, n_train=len(p.train), learner=learner)
 
 
 @dataclass(frozen=True, kw_only=True)
 class ContinualResult:
-    """The final model and the learning curve: one row per update with test accuracy."""
+    """The final model, the learner that trained it (config, memory, points seen) and the
+    learning curve: one row per update with test accuracy."""
 
     model: ErrorModel
+    learner: ContinualLearner
     updates: list[UpdateMetrics]
     curve: list[dict] = field(default_factory=list)
     test: AccuracyReport | None = None
@@ -158,7 +151,6 @@ def continual_on_dataset(
     model_cfg: ModelConfig | None = None,
     train_cfg: TrainConfig | None = None,
     on_update: Callable[[UpdateMetrics], None] | None = None,
-    out: str | Path | None = None,
     base: str | None = None,
     start: ContinualLearner | None = None,
 ) -> ContinualResult:
@@ -166,9 +158,7 @@ def continual_on_dataset(
     (``init`` points first, then batches of ``cfg.batch``), evaluating the test split after
     every update. ``base`` is ``cfg.base`` or a model file. With ``start`` (a learner carried
     from another day, :func:`load_learner`) its frames are re-identified from the first
-    ``init`` points before they are learned (:func:`learner.base.reidentify_frames`). With
-    ``out`` the final snapshot is saved there, the learner's state (memory included) and the
-    learning curve beside it (:func:`state_path`, :func:`curve_paths`)."""
+    ``init`` points before they are learned (:func:`learner.base.reidentify_frames`)."""
     if start is None:
         p = prepare(ds, test_fraction=test_fraction, seed=seed)
         physics = None  # identified by the learner from its first points
@@ -197,27 +187,14 @@ def continual_on_dataset(
             on_update(m)
     test = accuracy_report(learner.model, Xte, Yte) if len(Xte) else None
     learner.model.metrics = {} if test is None else test.to_dict()
-    result = ContinualResult(
+    return ContinualResult(
         model=learner.model,
+        learner=learner,
         updates=updates,
         curve=curve,
         test=test,
         total_time_s=float(sum(u.train_time_s for u in updates)),
     )
-    if out is not None:
-        out = Path(out)
-        save_snapshot(learner.model, out, {"strategy": cfg.strategy, "n_seen": learner.n_seen})
-        atomic_write_bytes(state_path(out), state_to_bytes(learner.state_dict()))
-        title = f"{cfg.strategy}: N_m={cfg.memory}, n_B={cfg.batch}"
-        write_learning_curve(curve, curve_paths(out), title)
-    return result
-
-
-def curve_paths(out: str | Path) -> tuple[Path, Path]:
-    """The learning-curve CSV and PNG written beside a model file."""
-    out = Path(out)
-    stem = out.with_suffix("")
-    return stem.with_name(stem.name + ".curve.csv"), stem.with_name(stem.name + ".curve.png")
 
 
 def evaluate_on_dataset(model: ErrorModel, ds: Dataset) -> AccuracyReport:

@@ -21,8 +21,8 @@ from scipy.stats import f as f_dist
 from kinematics.calibration import identifiable
 from kinematics.effects import EFFECTS, Effect
 from kinematics.errors import ConfigError, RobocalError
-from kinematics.gap.conditions import Observations
-from kinematics.gap.fitting import Block, jacobian
+from kinematics.identification.conditions import Observations
+from kinematics.identification.fitting import Block, jacobian
 from kinematics.model import RobotModel
 
 

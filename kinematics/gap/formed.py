@@ -25,8 +25,8 @@ from kinematics.description import RobotDescription
 from kinematics.effects import Effect, ThermalExpansion
 from kinematics.errors import DatasetError, RobocalError
 from kinematics.gap.candidates import CandidateScore, make_effect, untestable
-from kinematics.gap.conditions import Observations
-from kinematics.gap.fitting import Block, jacobian
+from kinematics.identification.conditions import Observations
+from kinematics.identification.fitting import Block, jacobian
 from kinematics.model import RobotModel
 
 #: Two standardised channels closer than this in correlation cannot be told apart.

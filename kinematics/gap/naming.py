@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kinematics.gap.candidates import CandidateScore
-from kinematics.gap.fitting import FitResult
+from kinematics.identification.fitting import FitResult
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -19,7 +19,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.stats import chi2, ttest_1samp
 
-from kinematics.gap.conditions import Observations
+from kinematics.identification.conditions import Observations
 
 #: mean |e| / sigma for an isotropic 3-D Gaussian (Maxwell distribution).
 MAXWELL_MEAN = 2.0 * np.sqrt(2.0 / np.pi)

@@ -36,8 +36,6 @@ from kinematics.description import RobotDescription
 from kinematics.effects import EFFECTS, Effect, Restricted
 from kinematics.errors import ConfigError
 from kinematics.gap.candidates import CandidateScore, best, score_candidates
-from kinematics.gap.conditions import Observations, cell_description, observations_from_dataset
-from kinematics.gap.fitting import Block, fit_effects, predicted_poses
 from kinematics.gap.formed import candidate_effects
 from kinematics.gap.model_file import EffectEntry, ModelFile
 from kinematics.gap.naming import NamedEffect, named_effect
@@ -48,6 +46,12 @@ from kinematics.gap.regions import (
     region_labels,
     region_stats,
 )
+from kinematics.identification.conditions import (
+    Observations,
+    cell_description,
+    observations_from_dataset,
+)
+from kinematics.identification.fitting import Block, fit_effects, predicted_poses
 from kinematics.model import RobotModel
 
 FOLDED = ("geometric", "base_frame", "tool_frame")

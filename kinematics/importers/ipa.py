@@ -37,6 +37,7 @@ from kinematics.errors import DatasetError
 from kinematics.frames import FrameFit, fit_frames
 from kinematics.model import RobotModel, rot_z
 from kinematics.transforms import (
+    ARCMIN_PER_RAD,
     invert,
     rotation_angle,
     transform,
@@ -178,7 +179,7 @@ def _frame_gap(T_a: np.ndarray, T_b: np.ndarray) -> dict[str, float]:
     """Position (mm) and angle (arcmin) between two frames, for the metadata."""
     return {
         "mm": float(1e3 * np.linalg.norm(T_a[:3, 3] - T_b[:3, 3])),
-        "arcmin": float(np.rad2deg(rotation_angle(T_a[:3, :3] @ T_b[:3, :3].T)) * 60.0),
+        "arcmin": float(ARCMIN_PER_RAD * rotation_angle(T_a[:3, :3] @ T_b[:3, :3].T)),
     }
 
 

@@ -68,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         _cap_threads(args.torch_threads)
         return args._command.take_action(args)
-    except (RobocalError, CLIUsageError) as exc:
+    except RobocalError as exc:  # CLIUsageError included
         if args.debug:
             raise
         print(f"robocal: error: {exc}", file=sys.stderr)

@@ -8,11 +8,8 @@ import json
 import sys
 from typing import Any
 
+from kinematics.errors import CLIUsageError  # noqa: F401 - the commands raise it from here
 from learner.config import BASE_KINDS, DEFAULT_BASE
-
-
-class CLIUsageError(Exception):
-    """Arguments that parse but make no sense together."""
 
 
 class Command(abc.ABC):

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from stream.cli._base import Command, add_json_flag, emit
 
@@ -72,7 +73,12 @@ class DataSummary(Command):
     def take_action(self, args: argparse.Namespace) -> int:
         from kinematics.accuracy import summarize_file
 
-        s = summarize_file(args.file, robot=args.robot, histogram=args.hist)
+        s = summarize_file(args.file, robot=args.robot)
+        if args.hist is not None:
+            from stream.reports.plots import save_histogram
+
+            title = f"{Path(args.file).name} on {s.robot}"
+            save_histogram(s.errors_mm, args.hist, title=title)
         text = (
             f"{args.file}: N = {s.n}\n"
             f"position error  mean {s.mean_mm:.3f} mm, std {s.std_mm:.3f}, "

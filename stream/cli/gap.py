@@ -45,7 +45,12 @@ class Gap(Command):
                 bar.set_postfix_str(message)
                 bar.update()
 
-            result, files = gap_from_files(args.data, args.robot, config, args.report, progress)
+            result = gap_from_files(args.data, args.robot, config, progress)
+        files = None
+        if args.report is not None:
+            from stream.reports.gap import write_report
+
+            files = write_report(result, args.report)
         out = result.to_dict()
         if files is not None:
             out["report"] = {
@@ -88,7 +93,11 @@ class Calibrate(Command):
         from kinematics.gap.files import calibrate_from_files
 
         config = CalibrationConfig(rank_rtol=args.rank_rtol)
-        result = calibrate_from_files(args.data, args.robot, args.out, config)
+        result = calibrate_from_files(args.data, args.robot, config)
+        if args.out is not None:
+            from stream.reports.gap import write_calibrated_model
+
+            write_calibrated_model(result, args.out)
         r = result.residual
         ident = result.identifiability
         text = (

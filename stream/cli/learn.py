@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from learner.config import STRATEGIES, ContinualConfig, TrainConfig
@@ -52,6 +53,7 @@ class Train(Command):
 
         from kinematics.dataset import read_dataset
         from learner.workflow import train_on_dataset
+        from stream.reports.learner import write_trained
 
         ds = read_dataset(args.data)
         cfg = TrainConfig(seed=args.seed, max_epochs=args.max_epochs)
@@ -62,9 +64,9 @@ class Train(Command):
                 seed=args.seed,
                 train_cfg=cfg,
                 on_epoch=lambda e, v: (bar.update(), bar.set_postfix(val_mse=f"{v:.4g}")),
-                out=args.out,
                 base=args.base,
             )
+        write_trained(result, args.out)
         test = result.test.to_dict() if result.test else {}
         out = {
             "model": args.out,
@@ -112,7 +114,8 @@ class Continual(Command):
 
         from kinematics.dataset import read_dataset
         from learner.continual import load_learner
-        from learner.workflow import continual_on_dataset, curve_paths
+        from learner.workflow import continual_on_dataset
+        from stream.reports.learner import write_continual
 
         ds = read_dataset(args.data)
         cfg = ContinualConfig(
@@ -135,11 +138,10 @@ class Continual(Command):
                 seed=args.seed,
                 train_cfg=TrainConfig(seed=args.seed),
                 on_update=lambda m: bar.update(),
-                out=args.out,
                 base=None if start is not None else args.base,
                 start=start,
             )
-        csv_path, png_path = curve_paths(args.out)
+        csv_path, png_path = write_continual(result, args.out)
         test = result.test.to_dict() if result.test else {}
         out = {
             "model": args.out,
@@ -201,12 +203,15 @@ class ExperimentPaper(Command):
 
         from kinematics.dataset import read_dataset
         from learner.experiment import StudyConfig, run_paper_study
+        from stream.reports.learner import write_study
 
         ds = read_dataset(args.data)
+        Path(args.out).mkdir(parents=True, exist_ok=True)  # a bad folder fails before the runs
         cfg = StudyConfig.quick(seed=args.seed) if args.quick else StudyConfig(seed=args.seed)
         with tqdm(total=cfg.n_runs, desc="experiment", unit="run", file=sys.stderr) as bar:
-            study = run_paper_study(ds, cfg, args.out, on_run=lambda name: bar.update())
-        emit(study.to_dict(), args.json, study.markdown)
+            study = run_paper_study(ds, cfg, on_run=lambda name: bar.update())
+        out_dir = write_study(study, args.out)
+        emit({**study.to_dict(), "out_dir": str(out_dir)}, args.json, study.markdown)
         return 0
 
 

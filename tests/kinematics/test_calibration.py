@@ -16,8 +16,8 @@ from kinematics.calibration import (
 from kinematics.dataset import Dataset, DatasetMeta
 from kinematics.description import description_to_toml, load_description
 from kinematics.errors import ConfigError, DatasetError, IdentifiabilityError
-from kinematics.gap.conditions import observations_from_dataset
-from kinematics.gap.fitting import jacobian, residual_matrix
+from kinematics.identification.conditions import observations_from_dataset
+from kinematics.identification.fitting import jacobian, residual_matrix
 from kinematics.model import RobotModel
 from kinematics.transforms import transform_from_xyz_rpy, xyz_quat_from_transform
 

@@ -10,10 +10,14 @@ from kinematics.description import load_description
 from kinematics.effects import EFFECTS, perturbed_poses
 from kinematics.errors import ConfigError, DescriptionError, IdentifiabilityError
 from kinematics.gap.candidates import make_effect, score_candidate
-from kinematics.gap.conditions import cell_description, infer_approach, observations_from_dataset
-from kinematics.gap.fitting import fit_effects
 from kinematics.gap.model_file import load_model_file, model_to_toml
 from kinematics.gap.workflow import GapConfig, run_gap, split
+from kinematics.identification.conditions import (
+    cell_description,
+    infer_approach,
+    observations_from_dataset,
+)
+from kinematics.identification.fitting import fit_effects
 from kinematics.model import RobotModel
 from sim_sources.cell import simulate
 from sim_sources.scenarios import get_scenario

@@ -4,7 +4,6 @@ import numpy as np
 import pytest
 
 from kinematics.effects import Conditions
-from kinematics.gap.conditions import Observations
 from kinematics.gap.regions import (
     MAXWELL_MEAN,
     NoiseFloor,
@@ -12,6 +11,7 @@ from kinematics.gap.regions import (
     region_labels,
     region_stats,
 )
+from kinematics.identification.conditions import Observations
 
 SIGMA = 20e-6
 

@@ -20,7 +20,7 @@ from stream.cli import main
 
 def _gap(spec: UnseenSpec, folder, start: str = "geometric"):
     path, desc, truth = write_unseen(spec, folder)
-    result, _ = gap_from_files(path, config=GapConfig(start=start))
+    result = gap_from_files(path, config=GapConfig(start=start))
     return result, desc, truth
 
 
@@ -85,7 +85,7 @@ def test_sensors_map_is_used_and_missing_columns_exit_2(tmp_path, capsys):
     mapped = tmp_path / "mapped.toml"
     mapped.write_text(description_to_toml(replace(desc, temperature_links=links)))
     assert load_description(mapped).temperature_links == links
-    result, _ = gap_from_files(path, mapped)
+    result = gap_from_files(path, mapped)
     assert [e.effect for e in result.named] == ["thermal_expansion"]
     (effect, _), *_ = [(e, p) for e, p in result.blocks if e.name == "thermal_expansion"]
     assert isinstance(effect.effect, ThermalExpansion)

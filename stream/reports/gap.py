@@ -10,15 +10,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import rerun as rr  # noqa: E402
-
-from kinematics.gap.model_file import model_to_toml  # noqa: E402
-from kinematics.gap.workflow import GapResult  # noqa: E402
+from kinematics.calibration import CalibrationResult
+from kinematics.gap.model_file import ModelFile, model_to_toml
+from kinematics.gap.workflow import GapResult
+from stream.reports.plots import new_figure
 
 ARROW_GAIN = 200.0
 
@@ -44,6 +41,14 @@ def write_report(result: GapResult, out_dir: str | Path) -> ReportFiles:
     markdown = out / "gap.md"
     markdown.write_text(markdown_text(result, [p.name for p in plots]))
     return ReportFiles(markdown=markdown, plots=plots, recording=recording, model=model)
+
+
+def write_calibrated_model(result: CalibrationResult, path: str | Path) -> Path:
+    """Write the calibrated model (description + ``T_W_0``, no effects) as a model-file TOML."""
+    model = ModelFile(description=result.description, T_W_0=result.T_W_0, effects=())
+    path = Path(path)
+    path.write_text(model_to_toml(model))
+    return path
 
 
 def markdown_text(result: GapResult, plot_names: list[str] = ()) -> str:
@@ -115,7 +120,7 @@ def markdown_text(result: GapResult, plot_names: list[str] = ()) -> str:
 
 
 def _plot_stages(result: GapResult, path: Path) -> Path:
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, ax = new_figure((7, 4))
     labels = [s.label for s in result.stages]
     x = np.arange(len(labels))
     ax.bar(x - 0.2, [s.heldout.mean_mm for s in result.stages], 0.4, label="mean")
@@ -127,14 +132,13 @@ def _plot_stages(result: GapResult, path: Path) -> Path:
     ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return path
 
 
 def _plot_regions(result: GapResult, out: Path) -> Path:
     path = out / "gap_regions.png"
     before, after = result.stages[0].regions, result.stages[-1].regions
-    fig, ax = plt.subplots(figsize=(8, max(4, 0.18 * len(before))))
+    fig, ax = new_figure((8, max(4, 0.18 * len(before))))
     y = np.arange(len(before))
     ax.barh(y + 0.2, [r.ratio_to_floor for r in before], 0.4, label=result.stages[0].label)
     ax.barh(y - 0.2, [r.ratio_to_floor for r in after], 0.4, label=result.stages[-1].label)
@@ -145,11 +149,12 @@ def _plot_regions(result: GapResult, out: Path) -> Path:
     ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return path
 
 
 def _record(result: GapResult, path: Path) -> Path:
+    import rerun as rr
+
     rec = rr.RecordingStream("robocal_gap")
     rec.save(path)
     xyz = result.heldout_xyz_m

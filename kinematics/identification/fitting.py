@@ -14,7 +14,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from kinematics.effects._base import Effect, Perturbation, dh_table, perturbed_poses
-from kinematics.gap.conditions import Observations
+from kinematics.identification.conditions import Observations
 from kinematics.model import RobotModel
 from kinematics.transforms import invert, pose_error, vee_skew
 
