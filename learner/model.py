@@ -21,6 +21,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 import torch
@@ -54,6 +55,27 @@ class TrainReport:
     skipped_steps: int
     train_time_s: float
     val_mse_history: tuple[float, ...] = field(default=(), repr=False)
+
+
+@runtime_checkable
+class ErrorModelProtocol(Protocol):
+    """What every error model gives the learner, the stages and the snapshots (River's
+    estimator protocol): its feature spec and seed, ``fit`` on raw SI features ``(N, F)`` and
+    labels ``(N, 6)`` (m, rad), an NIG ``predict`` in label units and an unfitted ``clone``.
+    Members pass ``tests/learner/test_error_model_conformance.py``."""
+
+    spec: FeatureSpec
+    seed: int
+    robot: str
+
+    @property
+    def is_fitted(self) -> bool: ...
+
+    def fit(self, X: np.ndarray, Y: np.ndarray) -> TrainReport: ...
+
+    def predict(self, X: np.ndarray) -> Evidential: ...
+
+    def clone(self) -> ErrorModelProtocol: ...
 
 
 class ErrorModel:
@@ -110,6 +132,13 @@ class ErrorModel:
         """A fresh, untrained model (weights drawn from ``seed``) on ``base`` (none: nominal)."""
         return cls(
             spec=spec, model_cfg=model_cfg, train_cfg=train_cfg, seed=seed, robot=robot, base=base
+        )
+
+    def clone(self) -> ErrorModel:
+        """A fresh, untrained model with this one's spec, configs, seed, robot and base (its
+        hyper-parameters, as River's ``clone``): trained alike it predicts alike."""
+        return ErrorModel.create(
+            self.spec, self.model_cfg, self.train_cfg, self.seed, self.robot, self.base
         )
 
     @property
