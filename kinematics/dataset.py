@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -177,10 +178,10 @@ def write_dataset(ds: Dataset, path: str | Path) -> Path:
         table = table.replace_schema_metadata(
             {**(table.schema.metadata or {}), META_KEY: meta_json}
         )
-        _atomic(path, lambda tmp: pq.write_table(table, tmp))
+        atomic_write(path, lambda tmp: pq.write_table(table, tmp))
     else:
-        _atomic(path, lambda tmp: ds.table.to_csv(tmp, index=False, float_format="%.17g"))
-    _atomic(meta_path(path), lambda tmp: Path(tmp).write_text(meta_json + "\n"))
+        atomic_write(path, lambda tmp: ds.table.to_csv(tmp, index=False, float_format="%.17g"))
+    atomic_write(meta_path(path), lambda tmp: Path(tmp).write_text(meta_json + "\n"))
     return path
 
 
@@ -216,14 +217,39 @@ def read_dataset(path: str | Path, limits_rad: np.ndarray | None = None) -> Data
     return ds
 
 
-def _atomic(path: Path, write) -> None:
-    """Call ``write(tmp)`` then rename ``tmp`` over ``path``; nothing half-written remains."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
+def atomic_write(path: str | Path, write: Callable[[str], object]) -> Path:
+    """Call ``write(tmp)`` on a temporary file beside ``path``, then rename it over ``path``:
+    nothing half-written remains, the file gets the user's umask (not mkstemp's 0600), and an
+    OSError (a full disk's write names no file) is raised again naming ``path``."""
+    path = Path(path)
+    tmp = None
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        os.close(fd)
         write(tmp)
+        os.chmod(tmp, 0o666 & ~current_umask())
         os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+    except BaseException as exc:
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
+        if isinstance(exc, OSError) and exc.errno is not None:
+            raise OSError(exc.errno, os.strerror(exc.errno), str(path)) from None
+        if isinstance(exc, OSError):  # pyarrow's errors carry a message only
+            raise OSError(f"{path}: {str(exc).splitlines()[0] if str(exc) else exc!r}") from None
         raise
+    return path
+
+
+def current_umask() -> int:
+    """The process umask, read without setting it (Linux ``/proc/self/status``; elsewhere set
+    and restored at once)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask

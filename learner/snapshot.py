@@ -21,8 +21,6 @@ True
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 import tomllib
 from dataclasses import asdict
 from pathlib import Path
@@ -33,6 +31,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load as st_load
 from safetensors.torch import save as st_save
 
+from kinematics.dataset import atomic_write
 from kinematics.description import description_from_dict, description_to_toml
 from kinematics.errors import RobocalError, SnapshotError
 from kinematics.gap.model_file import EffectEntry
@@ -185,18 +184,9 @@ def save_snapshot(model: ErrorModel, path: str | Path, extra_meta: dict | None =
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically (temporary file in the folder, then rename)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    """Write ``data`` to ``path`` atomically with the user's umask (see
+    :func:`kinematics.dataset.atomic_write`)."""
+    return atomic_write(path, lambda tmp: Path(tmp).write_bytes(data))
 
 
 def load_snapshot(path: str | Path) -> ErrorModel:

@@ -14,7 +14,7 @@ import argparse
 import sys
 
 from kinematics.errors import RobocalError
-from stream.cli._base import CLIUsageError, Command
+from stream.cli._base import CLIUsageError, Command, check_outputs
 from stream.cli.data import COMMANDS as _DATA
 from stream.cli.gap import COMMANDS as _GAP
 from stream.cli.hpo import COMMANDS as _HPO
@@ -53,10 +53,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _cap_threads(n: int) -> None:
-    """Cap torch's intra-op threads (CLIUsageError below 1)."""
+def _cap_threads(n: int, uses_torch: bool = True) -> None:
+    """Cap torch's intra-op threads (CLIUsageError below 1); torch is not loaded for commands
+    that do not use it."""
     if n < 1:
         raise CLIUsageError(f"--torch-threads must be >= 1, got {n}")
+    if not uses_torch:
+        return
     import torch  # every learning command imports it anyway; --help does not get here
 
     torch.set_num_threads(n)
@@ -66,12 +69,20 @@ def main(argv: list[str] | None = None) -> int:
     """Run one command; errors become one line on stderr and exit code 2."""
     args = build_parser().parse_args(argv)
     try:
-        _cap_threads(args.torch_threads)
+        check_outputs(args)
+        _cap_threads(args.torch_threads, args._command.uses_torch)
         return args._command.take_action(args)
     except RobocalError as exc:  # CLIUsageError included
         if args.debug:
             raise
         print(f"robocal: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # a full disk, permissions, a path that is a file: one line too
+        if args.debug:
+            raise
+        from stream.state import describe_os_error
+
+        print(f"robocal: error: {describe_os_error(exc)}", file=sys.stderr)
         return 2
 
 

@@ -5,7 +5,10 @@ from __future__ import annotations
 import abc
 import argparse
 import json
+import os
 import sys
+import tempfile
+from pathlib import Path
 from typing import Any
 
 from kinematics.errors import CLIUsageError  # noqa: F401 - the commands raise it from here
@@ -17,6 +20,8 @@ class Command(abc.ABC):
 
     name: str = ""
     help: str = ""
+    #: False for commands that never touch torch: main() then leaves it unimported.
+    uses_torch: bool = True
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
         """Add this command's options; a no-op hook for commands without any."""
@@ -24,6 +29,32 @@ class Command(abc.ABC):
     @abc.abstractmethod
     def take_action(self, args: argparse.Namespace) -> int:
         """Do the work; return the exit code."""
+
+
+#: Options naming a file or folder a command writes. main() proves each one's folder writable
+#: before the command starts, so a long run never ends in a write error it could have seen.
+OUTPUT_OPTIONS = ("out", "hist", "report")
+
+
+def check_outputs(args: argparse.Namespace) -> None:
+    """CLIUsageError naming the option, path and reason when an output's folder cannot be
+    written (it is created if missing; a probe file is written there and removed)."""
+    for name in OUTPUT_OPTIONS:
+        value = getattr(args, name, None)
+        if not isinstance(value, str):
+            continue
+        path = Path(value)
+        existing = next(p for p in (path.parent, *path.parent.parents) if p.exists())
+        if not existing.is_dir():
+            raise CLIUsageError(f"--{name} {value}: {existing} is a file, not a folder")
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd, probe = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".probe")
+            os.close(fd)
+            os.unlink(probe)
+        except OSError as exc:
+            reason = os.strerror(exc.errno) if exc.errno else str(exc)
+            raise CLIUsageError(f"--{name} {value}: cannot write there: {reason}") from None
 
 
 def add_json_flag(parser: argparse.ArgumentParser) -> None:

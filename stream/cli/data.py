@@ -16,6 +16,7 @@ from stream.cli._base import Command, add_json_flag, emit
 class ImportIpa(Command):
     name = "import ipa"
     help = "import a UR10 laser-tracker series folder (ur10-ipa layout) into the dataset format"
+    uses_torch = False
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("folder", help="series folder, e.g. ../shared/data/ur10-ipa/Series_B")
@@ -63,6 +64,7 @@ class ImportIpa(Command):
 class DataSummary(Command):
     name = "data summary"
     help = "uncalibrated absolute accuracy of a dataset against its nominal robot model"
+    uses_torch = False
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("file", help="dataset file (.parquet or .csv with .meta.json)")

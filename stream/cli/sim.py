@@ -15,6 +15,7 @@ from stream.cli._base import CLIUsageError, Command, add_json_flag, emit
 class SimDataset(Command):
     name = "sim dataset"
     help = "simulate a measurement campaign of the simulated cell and write it as a dataset"
+    uses_torch = False
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("--scenario", default="paper", help="scenario name (see --list)")
