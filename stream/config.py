@@ -19,10 +19,11 @@ from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from stream.bus import BusConfig
 from stream.compensation import CompensationConfig
 from stream.learner_core import LearnerStageConfig
+from stream.stages import ROBOT_STAGES
 from stream.trust import ModelTrustConfig
 from stream.window import WindowConfig
 
-STAGES = ("window", "learner", "compensation", "dashboard")
+STAGES = ROBOT_STAGES  # the stage registry's per-robot names
 
 
 @dataclass(frozen=True, kw_only=True)

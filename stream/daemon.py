@@ -35,6 +35,7 @@ from stream.dashboard import Dashboard
 from stream.log import JsonLogger
 from stream.mcap_io import next_free_path
 from stream.stages import (
+    STAGES,
     CompensationService,
     DashboardStage,
     LearnerStage,
@@ -204,7 +205,7 @@ class Daemon:
         fatal errors by stage (``name/robot``)."""
         deadline = time.monotonic() + timeout_s
         reserve = min(2.0, timeout_s / 4)  # kept for the stages after the learner
-        order = ["window", "learner", "compensation", "dashboard", "recorder"]
+        order = list(STAGES)  # the registry's data-flow order, the recorder last
         failures: dict[str, BaseException] = {}
         for stage in self.stages:
             stage.unsubscribe()  # nothing new comes in while the queues are worked off
