@@ -14,7 +14,6 @@ crashed worker on this host are marked failed (and so redone).
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import math
 import os
 import socket
@@ -26,6 +25,8 @@ from pathlib import Path
 from typing import Any
 
 import optuna
+import psutil
+from filelock import FileLock
 from optuna.distributions import BaseDistribution
 from optuna.samplers import BaseSampler, TPESampler
 from optuna.storages import BaseStorage, JournalStorage, RDBStorage
@@ -262,25 +263,17 @@ def _worker_id() -> str:
 
 
 def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
+    """Whether process ``pid`` exists on this host (another user's counts as alive)."""
+    return psutil.pid_exists(pid)
 
 
 @contextlib.contextmanager
 def _file_lock(path: Path | None) -> Iterator[None]:
-    """An exclusive ``flock`` on ``path`` (no-op for None): one worker counts and asks at a time."""
+    """An exclusive ``flock`` on ``path`` (no-op for None), taken through ``filelock`` (which
+    owns the OS locking): one worker counts and asks at a time."""
     if path is None:
         yield
         return
     path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "a") as handle:
-        fcntl.flock(handle, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
+    with FileLock(path):
+        yield
