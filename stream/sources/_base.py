@@ -1,19 +1,33 @@
-"""The ``Source`` family: a loop that reads a device (or a simulator) and publishes samples.
+"""The ``Source`` family: a loop that reads a device (or a file) and publishes samples.
 
-A real controller, tracker or DAQ adapter is one small module: subclass :class:`Source`,
-implement :meth:`Source.run` (read, convert to a ``stream.messages`` sample, ``self.publish``)
-while ``self.running``; open the device in ``setup()`` and close it in ``cleanup(failed)``.
+A controller, tracker or DAQ adapter is one small module: subclass :class:`Source`, implement
+:meth:`Source.run` (read, convert to a ``stream.messages`` sample, ``self.publish``) while
+``self.running``; open the device in ``setup()`` and close it in ``cleanup(failed)``. What a
+source could not deliver (a device that dropped, a payload it could not decode, a gap in the
+device's sequence numbers) is counted by reason with :meth:`Source.undelivered`; the counts go
+out as :class:`~stream.messages.Diagnostics` (stage ``source_<kind>``) on
+``robocal/<cell>/<robot>/diagnostics`` every ``diagnostics_period_s`` and when the source ends.
 """
 
 from __future__ import annotations
 
 import abc
+import contextlib
 import threading
+import time
 
 import zenoh
 
 from stream.bus import publisher
-from stream.messages import JointSample, TemperatureSample, TrackerSample, encode, key
+from stream.messages import (
+    DropCounter,
+    JointSample,
+    RejectedMessageError,
+    TemperatureSample,
+    TrackerSample,
+    encode,
+    key,
+)
 
 _STREAM = {JointSample: "joints", TrackerSample: "tracker", TemperatureSample: "temperature"}
 
@@ -21,12 +35,17 @@ _STREAM = {JointSample: "joints", TrackerSample: "tracker", TemperatureSample: "
 class Source(abc.ABC):
     """Publishes one robot's source samples on ``robocal/<cell>/<robot>/<stream>``."""
 
+    kind = "source"
+    diagnostics_period_s = 1.0
+
     def __init__(self, session: zenoh.Session, cell: str, robot: str) -> None:
         self.cell, self.robot = cell, robot
         self._session = session
         self._publishers = {}
         self._stop = threading.Event()
+        self._lock = threading.Lock()
         self.published = 0
+        self.counter = DropCounter(f"source_{self.kind}")
 
     @property
     def running(self) -> bool:
@@ -35,6 +54,10 @@ class Source(abc.ABC):
     def stop(self) -> None:
         """Ask :meth:`run` to return at its next check of ``running``."""
         self._stop.set()
+
+    def wait(self, seconds: float) -> bool:
+        """Sleep up to ``seconds`` (s); True when asked to stop meanwhile."""
+        return self._stop.wait(seconds)
 
     def setup(self) -> None:
         """Open the device; a no-op hook by default."""
@@ -46,25 +69,62 @@ class Source(abc.ABC):
     def run(self) -> None:
         """Read and :meth:`publish` samples while :attr:`running`."""
 
-    def publish(self, sample: JointSample | TrackerSample | TemperatureSample) -> None:
+    def undelivered(self, reason: str, n: int = 1) -> None:
+        """Count ``n`` samples of the device that were not published, under ``reason``."""
+        with self._lock:
+            self.counter.drop(reason, n)
+
+    def publish(self, sample: JointSample | TrackerSample | TemperatureSample) -> bool:
+        """Validate and publish one sample; an invalid one is counted under its reason."""
+        try:
+            sample.check()
+        except RejectedMessageError as exc:
+            self.undelivered(exc.reason)
+            return False
         self.publish_raw(_STREAM[type(sample)], encode(sample))
+        return True
 
     def publish_raw(self, stream: str, payload: bytes) -> None:
         """Publish an already encoded payload on ``stream`` (adapters that forward JSON)."""
         if stream not in self._publishers:
             self._publishers[stream] = publisher(self._session, key(self.cell, self.robot, stream))
         self._publishers[stream].put(payload)
-        self.published += 1
+        with self._lock:
+            self.published += 1
+            self.counter.accept()
+
+    def diagnostics(self) -> dict:
+        """Published and undelivered counts (by reason) so far."""
+        with self._lock:
+            return {"published": self.published, "undelivered": dict(self.counter.dropped)}
+
+    def publish_diagnostics(self) -> None:
+        """Put the counts on ``robocal/<cell>/<robot>/diagnostics``."""
+        with self._lock:
+            diag = self.counter.diagnostics(time.time())
+        self._session.put(key(self.cell, self.robot, "diagnostics"), encode(diag))
+
+    def _report(self) -> None:
+        while not self._stop.wait(self.diagnostics_period_s):
+            self.publish_diagnostics()
 
     def start(self) -> None:
-        """``setup()``, ``run()``, ``cleanup(failed)`` in this thread."""
-        self.setup()
+        """``setup()``, ``run()``, ``cleanup(failed)`` in this thread (diagnostics beside)."""
+        reporter = threading.Thread(target=self._report, name=f"{self.kind}-diag", daemon=True)
+        reporter.start()
         failed = True
         try:
+            self.setup()
             self.run()
             failed = False
         finally:
-            self.cleanup(failed)
-            for pub in self._publishers.values():
-                pub.undeclare()
-            self._publishers.clear()
+            self._stop.set()
+            try:
+                self.cleanup(failed)
+            finally:
+                reporter.join(self.diagnostics_period_s + 1.0)
+                for pub in self._publishers.values():
+                    pub.undeclare()
+                self._publishers.clear()
+                with contextlib.suppress(zenoh.ZError):  # a closing session: counts stay here
+                    self.publish_diagnostics()

@@ -13,6 +13,8 @@ from stream.sources._base import Source
 class SimCellSource(Source):
     """Streams ``ds`` at ``speed`` x real time (``None``: as fast as possible)."""
 
+    kind = "sim"
+
     def __init__(
         self,
         session: zenoh.Session,
@@ -25,8 +27,12 @@ class SimCellSource(Source):
         super().__init__(session, cell, robot)
         self.ds, self.cfg, self.speed = ds, cfg, speed
 
+    def samples(self):
+        """The samples to stream, in source-time order."""
+        return cell_samples(self.ds, self.cfg)
+
     def run(self) -> None:
-        for sample in paced(cell_samples(self.ds, self.cfg), self.speed):
+        for sample in paced(self.samples(), self.speed, sleep=self.wait):
             if not self.running:
                 return
             self.publish(sample)
