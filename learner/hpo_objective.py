@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 
 import numpy as np
 import optuna
@@ -92,8 +93,8 @@ def cv_objective(
         trial.set_user_attr("n_weights", n_weights)
         trial.set_user_attr("epochs", epochs)
         model_cfg, train_cfg = trial_configs(params, cfg, max_epochs=epochs)
-        run = _batched if cfg.batched_folds else _sequential
-        mins, best_epochs = run(trial, spec, X, Y, folds, model_cfg, train_cfg, cfg, base, deadline)
+        cv = _CV(spec, X, Y, folds, model_cfg, train_cfg, cfg, base, deadline)
+        mins, best_epochs = (_batched if cfg.batched_folds else _sequential)(trial, cv)
         trial.set_user_attr("best_epochs", best_epochs)
         return float(np.mean(mins))
 
@@ -107,70 +108,57 @@ def _check(trial: optuna.Trial, deadline: float | None, where: str) -> None:
         raise optuna.TrialPruned(f"pruned at {where}")
 
 
-def _batched(
-    trial: optuna.Trial,
-    spec: FeatureSpec,
-    X: np.ndarray,
-    Y: np.ndarray,
-    folds: list[np.ndarray],
-    model_cfg: ModelConfig,
-    train_cfg: TrainConfig,
-    cfg: HpoConfig,
-    base: PhysicsBase | None,
-    deadline: float | None,
-) -> tuple[list[float], list[int]]:
+@dataclass(frozen=True)
+class _CV:
+    """What one trial's folds train on: the data, the folds, the trial's configs, the base
+    and the deadline (``time.monotonic()`` s)."""
+
+    spec: FeatureSpec
+    X: np.ndarray
+    Y: np.ndarray
+    folds: list[np.ndarray]
+    model_cfg: ModelConfig
+    train_cfg: TrainConfig
+    cfg: HpoConfig
+    base: PhysicsBase | None
+    deadline: float | None
+
+
+def _batched(trial: optuna.Trial, cv: _CV) -> tuple[list[float], list[int]]:
     """All folds in one batched model; reports the mean over folds every epoch. Per fold the
     minimum validation MSE (scaled label units) and its epoch."""
-    torch.manual_seed(cfg.seed)  # dropout masks come from torch's global generator
+    torch.manual_seed(cv.cfg.seed)  # dropout masks come from torch's global generator
 
     def on_epoch(epoch: int, running: np.ndarray) -> None:
         trial.report(float(np.mean(running)), step=epoch)
-        _check(trial, deadline, f"epoch {epoch}")
+        _check(trial, cv.deadline, f"epoch {epoch}")
 
+    data = (cv.spec, cv.X, cv.Y, cv.folds, cv.model_cfg, cv.train_cfg)
     try:
         report = train_folds(
-            spec,
-            X,
-            Y,
-            folds,
-            model_cfg,
-            train_cfg,
-            seed=cfg.seed,
-            base=base,
-            on_epoch=on_epoch,
-            deadline=deadline,
+            *data, seed=cv.cfg.seed, base=cv.base, on_epoch=on_epoch, deadline=cv.deadline
         )
     except TimeoutError as exc:
         raise optuna.TrialPruned(f"timeout: {exc}") from None
     return list(report.min_val_mse), list(report.best_epochs)
 
 
-def _sequential(
-    trial: optuna.Trial,
-    spec: FeatureSpec,
-    X: np.ndarray,
-    Y: np.ndarray,
-    folds: list[np.ndarray],
-    model_cfg: ModelConfig,
-    train_cfg: TrainConfig,
-    cfg: HpoConfig,
-    base: PhysicsBase | None,
-    deadline: float | None,
-) -> tuple[list[float], list[int]]:
+def _sequential(trial: optuna.Trial, cv: _CV) -> tuple[list[float], list[int]]:
     """One fold after the other (fold-major steps); reports the running mean every epoch."""
+    X, Y, seed = cv.X, cv.Y, cv.cfg.seed
     mins: list[float] = []
     best_epochs: list[int] = []
-    for k, val in enumerate(folds):
+    for k, val in enumerate(cv.folds):
         train = np.setdiff1d(np.arange(len(X)), val)
-        model = ErrorModel.create(spec, model_cfg, train_cfg, seed=cfg.seed + k, base=base)
+        model = ErrorModel.create(cv.spec, cv.model_cfg, cv.train_cfg, seed=seed + k, base=cv.base)
         running = [math.inf]
-        torch.manual_seed(cfg.seed + k)  # dropout masks come from torch's global generator
+        torch.manual_seed(seed + k)  # dropout masks come from torch's global generator
 
         def on_epoch(epoch: int, val_mse: float, k: int = k, running: list = running) -> None:
             if math.isfinite(val_mse):
                 running[0] = min(running[0], val_mse)
-            trial.report((sum(mins) + running[0]) / (k + 1), step=k * cfg.max_epochs + epoch)
-            _check(trial, deadline, f"fold {k}, epoch {epoch}")
+            trial.report((sum(mins) + running[0]) / (k + 1), step=k * cv.cfg.max_epochs + epoch)
+            _check(trial, cv.deadline, f"fold {k}, epoch {epoch}")
 
         report = model.fit(X[train], Y[train], X[val], Y[val], on_epoch=on_epoch)
         mins.append(running[0])

@@ -15,7 +15,7 @@ import numpy as np
 from kinematics.calibration import CalibrationResult
 from kinematics.gap.model_file import ModelFile, model_to_toml
 from kinematics.gap.workflow import GapResult
-from stream.reports.plots import new_figure
+from stream.reports.plots import new_figure, save_figure
 
 ARROW_GAIN = 200.0
 
@@ -130,9 +130,7 @@ def _plot_stages(result: GapResult, path: Path) -> Path:
     ax.set_yscale("log")
     ax.set_ylabel("held-out position residual (mm)")
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    return path
+    return save_figure(fig, path)
 
 
 def _plot_regions(result: GapResult, out: Path) -> Path:
@@ -147,9 +145,7 @@ def _plot_regions(result: GapResult, out: Path) -> Path:
     ax.set_xscale("log")
     ax.set_xlabel("held-out mean residual / noise floor")
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    return path
+    return save_figure(fig, path)
 
 
 def _record(result: GapResult, path: Path) -> Path:

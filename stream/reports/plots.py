@@ -22,6 +22,13 @@ def new_figure(size_in: tuple[float, float], dpi: float = 100.0) -> tuple[Any, A
     return fig, fig.add_subplot()
 
 
+def save_figure(fig: Any, path: str | Path, dpi: float = 100.0) -> Path:
+    """Lay out ``fig`` tightly and write it to ``path`` as PNG at ``dpi``."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi, format="png")
+    return Path(path)
+
+
 def save_histogram(errors_mm: np.ndarray, path: str | Path, title: str = "") -> Path:
     """A PNG histogram of position errors (mm)."""
     errors_mm = np.asarray(errors_mm, dtype=float)
@@ -32,11 +39,8 @@ def save_histogram(errors_mm: np.ndarray, path: str | Path, title: str = "") -> 
     ax.set_ylabel("points")
     ax.set_title(title or f"uncalibrated position error, N = {errors_mm.size}")
     ax.legend()
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, format="png")
-    return path
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    return save_figure(fig, path)
 
 
 def write_learning_curve(curve: list[dict], paths: tuple[Path, Path], title: str) -> None:
@@ -56,8 +60,7 @@ def write_learning_curve(curve: list[dict], paths: tuple[Path, Path], title: str
     ax.set_yscale("log")
     ax.set_title(title)
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(png_path, dpi=110)
+    save_figure(fig, png_path, dpi=110)
 
 
 def plot_sizes(rows: list[dict], path: Path) -> None:
@@ -74,5 +77,4 @@ def plot_sizes(rows: list[dict], path: Path) -> None:
     ax.set_xscale("log")
     ax.set_xlabel("training points")
     ax.set_ylabel("test mean position error (mm)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)

@@ -62,7 +62,11 @@ def make_dataset(n: int, seed: int = 0, q1_range=(-2.0, 2.0)) -> Dataset:
 
 @pytest.fixture(autouse=True)
 def _one_thread():
+    """Every learner test on one torch thread (a loaded machine), the count restored after."""
+    threads = torch.get_num_threads()
     torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
 
 
 @pytest.fixture(scope="session")

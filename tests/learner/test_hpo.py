@@ -19,7 +19,6 @@ import numpy as np
 import optuna
 import pandas as pd
 import pytest
-import torch
 from optuna.distributions import IntDistribution
 from optuna.trial import TrialState, create_trial
 
@@ -57,14 +56,6 @@ batch_size = [8, 32]
 lr = [1e-6, 1e-2]
 weight_decay = [1e-7, 1e-3]
 """
-
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 
 def toy_dataset(n: int = 80, seed: int = 0) -> Dataset:

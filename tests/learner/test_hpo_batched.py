@@ -25,14 +25,6 @@ from tests.learner.test_hpo import TINY, toy_dataset
 optuna.logging.set_verbosity(optuna.logging.WARNING)
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 @pytest.fixture(scope="module")
 def arrays():
     return dataset_arrays(toy_dataset(60))
