@@ -19,6 +19,7 @@ from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from stream.bus import BusConfig
 from stream.compensation import CompensationConfig
 from stream.learner_core import LearnerStageConfig
+from stream.sources.config import SourceConfig, source_class
 from stream.stages import ROBOT_STAGES
 from stream.trust import ModelTrustConfig
 from stream.window import WindowConfig
@@ -79,6 +80,8 @@ class DaemonConfig:
     cell: str = "cell1"
     bus: BusConfig = field(default_factory=BusConfig)
     robots: tuple[RobotConfig, ...] = ()
+    #: ``[[sources]]``: devices (or a dataset, or the simulator) this daemon reads itself.
+    sources: tuple[SourceConfig, ...] = ()
     window: WindowConfig = field(default_factory=WindowConfig)
     learner: LearnerStageConfig = field(default_factory=LearnerStageConfig)
     compensation: CompensationConfig = field(default_factory=CompensationConfig)
@@ -106,6 +109,12 @@ class DaemonConfig:
         names = [r.name for r in self.robots]
         if len(set(names)) != len(names):
             raise ConfigError(f"robot names must be unique, got {names}")
+        for sc in self.sources:
+            if sc.robot not in names and not (sc.robot == "" and len(names) == 1):
+                raise ConfigError(
+                    f"[[sources]] kind {sc.kind!r}: robot {sc.robot!r} is not one of {names}"
+                    " (robot may be left out when there is one)"
+                )
         if any("dashboard" in r.stages for r in self.robots) and self.dashboard is None:
             raise ConfigError("a robot runs the dashboard stage but there is no [dashboard]")
 
@@ -147,6 +156,7 @@ def config_from_dict(raw: dict) -> DaemonConfig:
         "learner",
     )
     robots = tuple(_build(RobotConfig, r, "robot") for r in raw.pop("robot", []))
+    sources = tuple(_build(source_class(s), s, "sources") for s in raw.pop("sources", []))
     sections = {
         "bus": BusConfig,
         "window": WindowConfig,
@@ -156,7 +166,11 @@ def config_from_dict(raw: dict) -> DaemonConfig:
         "models": ModelTrustConfig,
     }
     built = {k: _build(cls, raw.pop(k), k) for k, cls in sections.items() if k in raw}
-    return _build(DaemonConfig, {**raw, **built, "learner": learner, "robots": robots}, "top level")
+    return _build(
+        DaemonConfig,
+        {**raw, **built, "learner": learner, "robots": robots, "sources": sources},
+        "top level",
+    )
 
 
 def load_config(path: str | Path) -> DaemonConfig:

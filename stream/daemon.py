@@ -34,6 +34,7 @@ from stream.config import DaemonConfig, RobotConfig
 from stream.dashboard import Dashboard
 from stream.log import JsonLogger
 from stream.mcap_io import next_free_path
+from stream.sources.build import SourceThread, build_source
 from stream.stages import (
     STAGES,
     CompensationService,
@@ -68,6 +69,8 @@ class Daemon:
         self.dashboards: dict[str, Dashboard] = {}
         #: The files this start records into (a new one per start): ``mcap``, ``rrd/<robot>``.
         self.recordings: dict[str, str] = {}
+        #: The ``[[sources]]`` this daemon reads itself, each in its thread (started last).
+        self.sources: list[SourceThread] = []
 
     def start(self) -> Daemon:
         """Check the state directories, open the session and the stages; on any failure the
@@ -106,6 +109,8 @@ class Daemon:
             )
         for robot in cfg.robots:
             self._start_robot(robot)
+        for src in self.sources:  # after every stage, so that nothing they publish is missed
+            src.start()
         for st in self.stages:
             if isinstance(st, RecorderStage):
                 self.recordings["mcap"] = str(st.recorder.path)
@@ -151,6 +156,10 @@ class Daemon:
             )
         if "dashboard" in rc.stages:
             self.stages.append(self._dashboard_stage(rc, desc, T_W_0))
+        for sc in cfg.sources:
+            if (sc.robot or cfg.robots[0].name) == rc.name:
+                source = build_source(sc, s, cfg.cell, rc.name, desc)
+                self.sources.append(SourceThread(source, self.log))
 
     def _dashboard_stage(self, rc: RobotConfig, desc, T_W_0) -> DashboardStage:
         dc = self.cfg.dashboard
@@ -197,7 +206,7 @@ class Daemon:
 
     def failed_stage(self) -> Stage | None:
         """The first stage whose worker died, or None."""
-        return next((st for st in self.stages if st.failure is not None), None)
+        return next((st for st in [*self.sources, *self.stages] if st.failure is not None), None)
 
     def stop(self, timeout_s: float = 600.0) -> dict[str, BaseException]:
         """Close every stage in data-flow order within ``timeout_s`` (queued work past it is
@@ -207,6 +216,11 @@ class Daemon:
         reserve = min(2.0, timeout_s / 4)  # kept for the stages after the learner
         order = list(STAGES)  # the registry's data-flow order, the recorder last
         failures: dict[str, BaseException] = {}
+        for src in self.sources:  # first: what they published is still worked off below
+            error = src.close(timeout_s=min(5.0, timeout_s / 4))
+            if error is not None:
+                failures[f"{src.name}/{src.robot}"] = error
+        self.sources.clear()
         for stage in self.stages:
             stage.unsubscribe()  # nothing new comes in while the queues are worked off
         for stage in sorted(self.stages, key=lambda st: order.index(st.name)):
