@@ -2,14 +2,11 @@
 
 import numpy as np
 import pytest
-import torch
 
 from kinematics.description import load_description
 from kinematics.model import RobotModel
 from kinematics.transforms import apply_error, pose_error, xyz_quat_from_transform
-from learner.config import ModelConfig, TrainConfig
-from learner.features import feature_spec
-from learner.model import ErrorModel
+from learner.config import ModelConfig
 from stream.compensation import (
     CompensationConfig,
     CompensationRequest,
@@ -37,19 +34,8 @@ def true_error(q: np.ndarray) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def fanuc():
-    torch.set_num_threads(1)
-    robot = RobotModel(load_description("fanuc_m900ib700"))
-    spec = feature_spec(robot.description, 1, False, ("ambient",))
-    rng = np.random.default_rng(0)
-    lim = robot.description.limits_rad * 0.5
-    q = rng.uniform(lim[:, 0], lim[:, 1], size=(200, 6))
-    X = np.hstack([q, np.full((200, 1), 20.0)])
-    model = ErrorModel.create(
-        spec, ModelConfig(hidden_layers=2, neurons=32), TrainConfig(max_epochs=150), seed=0
-    )
-    model.fit(X, true_error(q))
-    return robot, model, q
+def fanuc(train_fanuc):
+    return train_fanuc(200, ModelConfig(hidden_layers=2, neurons=32), 150, true_error)
 
 
 def test_controller_jacobian_matches_finite_differences():

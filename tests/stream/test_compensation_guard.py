@@ -3,16 +3,11 @@ quaternions and misses all give ``trusted: false`` with a coded reason, never an
 
 import numpy as np
 import pytest
-import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from kinematics.description import load_description
-from kinematics.model import RobotModel
 from kinematics.transforms import xyz_quat_from_transform
-from learner.config import ModelConfig, TrainConfig
-from learner.features import feature_spec
-from learner.model import ErrorModel
+from learner.config import ModelConfig
 from stream.compensation import CompensationConfig, CompensationRequest
 from stream.compensation_guard import GuardConfig, guarded_compensate, reach_m
 from stream.messages import RejectedMessageError, decode, encode
@@ -29,18 +24,10 @@ CODES = (
 
 
 @pytest.fixture(scope="module")
-def fanuc():
-    torch.set_num_threads(1)
-    robot = RobotModel(load_description("fanuc_m900ib700"))
-    spec = feature_spec(robot.description, 1, False, ("ambient",))
-    rng = np.random.default_rng(0)
-    lim = robot.description.limits_rad * 0.5
-    q = rng.uniform(lim[:, 0], lim[:, 1], size=(100, 6))
-    X = np.hstack([q, np.full((100, 1), 20.0)])
-    model = ErrorModel.create(
-        spec, ModelConfig(hidden_layers=1, neurons=16), TrainConfig(max_epochs=20), seed=0
+def fanuc(train_fanuc):
+    robot, model, _ = train_fanuc(
+        100, ModelConfig(hidden_layers=1, neurons=16), 20, lambda q: 1e-3 * np.sin(q)
     )
-    model.fit(X, 1e-3 * np.sin(q))
     return robot, model
 
 
