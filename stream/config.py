@@ -48,12 +48,14 @@ class RobotConfig:
 
 @dataclass(frozen=True, kw_only=True)
 class DashboardConfig:
-    """Where the dashboard goes: an .rrd file, a served web viewer, or a running viewer."""
+    """Where the dashboard goes: an .rrd file, a served web viewer, or a running viewer;
+    ``host`` is the name browsers reach this machine by (it goes into the viewer's URL)."""
 
     rrd: str | None = None
     serve: bool = False
     web_port: int = 9090
     grpc_port: int = 9876
+    host: str = "localhost"
     connect: str | None = None
 
     def __post_init__(self) -> None:

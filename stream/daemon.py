@@ -172,7 +172,7 @@ class Daemon:
             dash.save(rrd)
             self.recordings[f"rrd/{rc.name}"] = str(rrd)
         if dc.serve:
-            self.log.info("dashboard_served", url=dash.serve(dc.web_port, dc.grpc_port))
+            self.log.info("dashboard_served", url=dash.serve(dc.web_port, dc.grpc_port, dc.host))
         if dc.connect:
             dash.connect(dc.connect)
         self.dashboards[rc.name] = dash

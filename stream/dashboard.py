@@ -1,82 +1,75 @@
-"""The Rerun dashboard: learning curves, uncertainty, memory, and the robot with its errors.
+"""The Rerun dashboard: learning curves, per-point errors with their bands, the stream's inputs,
+drops, compensation answers, and the robot with its errors.
 
-Entities (timeline ``update`` = model version, ``point`` = data point seq):
+Every entity is logged on two timelines: ``time`` (wall clock when the dashboard received the
+message) and ``point`` (the newest data point's ``seq`` at that moment), so every panel shows
+its data on either; the viewer opens on ``time``. Entities (mm unless named):
 
-- ``metrics/test_error/{mean,max}`` (mm), ``metrics/batch_error/mean`` (mm)
-- ``metrics/uncertainty/{aleatoric,epistemic,epistemic_p90}`` (mm, std), a band for epistemic
-- ``metrics/memory/size``, ``metrics/memory/age`` (bar chart: memory points per batch age),
-  ``metrics/model/version``
-- ``points/prediction_error`` (mm per point, prequential: the model before it saw the point)
-- ``world/robot`` (links from FK), ``world/points`` (the newest ``max_points`` measured
-  positions coloured by error), ``world/errors`` (error arrows, scaled by ``arrow_scale``)
+- ``metrics/test_error/{mean,max}`` (held-out test points, newest model),
+  ``metrics/batch_error/mean``, ``metrics/uncertainty/{aleatoric,epistemic,epistemic_p90}``
+  (std), ``metrics/memory/size``, ``metrics/memory/age`` (bar chart: memory points per batch
+  age), ``metrics/model/version``, ``metrics/quarantined`` (when the learner reports it)
+- ``points/error/{measured,predicted,interval,epistemic}``: each point's position error and
+  the lagging model's prediction of it, with its 90 % predictive and epistemic bands
+  (``interval`` and ``epistemic`` hold two series, lower and upper)
+- ``points/left/{error,interval,epistemic}``: what is left of each point's error after the
+  lagging model's prediction (the model before it learned the point), with its bands
+- ``coverage/interval_90``: fraction of measured components inside the 90 % interval over the
+  last ``coverage_window`` points, beside the nominal 0.9
+- ``inputs/joints`` (deg), ``inputs/temperatures`` (°C), ``drops/<stage>/<reason>`` (counts)
+- ``compensation/{correction,residual,epistemic,trusted}``: each answer of the service
+- ``world/robot/{links,joints,tool}`` (``stream.dashboard_robot``), ``world/points`` (the newest
+  ``max_points`` measured positions coloured by what is left of their error),
+  ``world/errors`` (measured error arrows, scaled by ``arrow_scale``)
 
-Sinks: ``save`` an .rrd, ``serve`` a web viewer, or ``connect`` to a running viewer. The
-blueprint opens with the time series on the left and the 3-D view on the right.
+Sinks: ``save`` an .rrd, ``serve`` a web viewer (:func:`viewer_url` opens the live recording),
+or ``connect`` to a running viewer.
 """
 
 from __future__ import annotations
 
+import time
+from dataclasses import dataclass
 from pathlib import Path
+from urllib.parse import quote
 
 import numpy as np
-import pinocchio as pin
 import rerun as rr
-import rerun.blueprint as rrb
 from rerun.chunk import RrdReader
 
 from kinematics.model import RobotModel
-from stream.messages import Metrics
+from learner.evidential import Evidential
+from stream.compensation import CompensationReply
+from stream.dashboard_layout import SERIES_STYLE, TIMELINE, blueprint
+from stream.dashboard_robot import reach_m, robot_archetypes
+from stream.dashboard_scores import error_colors, rolling_coverage, score_points
+from stream.messages import Diagnostics, Metrics
 
 APPLICATION_ID = "robocal"
+RAD_TO_DEG = 180.0 / np.pi
 
 
-def blueprint() -> rrb.Blueprint:
-    """Errors, uncertainty and memory over updates; per-point error; the 3-D cell view."""
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Vertical(
-                rrb.TimeSeriesView(
-                    origin="/metrics",
-                    contents=["metrics/test_error/**", "metrics/batch_error/**"],
-                    name="Test error (mm)",
-                ),
-                rrb.TimeSeriesView(
-                    origin="/metrics",
-                    contents="metrics/uncertainty/**",
-                    name="Uncertainty (mm, std)",
-                ),
-                rrb.TimeSeriesView(origin="/points", name="Per-point prediction error (mm)"),
-                rrb.Horizontal(
-                    rrb.TimeSeriesView(
-                        origin="/metrics",
-                        contents=["metrics/memory/size", "metrics/model/**"],
-                        name="Memory and model version",
-                    ),
-                    rrb.BarChartView(origin="/metrics/memory/age", name="Memory by batch age"),
-                ),
-            ),
-            rrb.Spatial3DView(origin="/world", name="Cell (base frame, m)"),
-            column_shares=[3, 2],
-        ),
-        collapse_panels=True,
-    )
+def viewer_url(host: str, web_port: int, grpc_port: int) -> str:
+    """The web viewer's address that opens the live recording served on ``grpc_port``."""
+    grpc = f"rerun+http://{host}:{grpc_port}/proxy"
+    return f"http://{host}:{web_port}/?url={quote(grpc, safe='')}"
 
 
-def error_colors(error_mm: np.ndarray, scale_mm: float) -> np.ndarray:
-    """RGB colours from green (0) through yellow to red (``>= scale_mm``)."""
-    s = np.clip(np.asarray(error_mm, dtype=float) / max(scale_mm, 1e-9), 0.0, 1.0)
-    r = np.clip(2.0 * s, 0.0, 1.0)
-    g = np.clip(2.0 * (1.0 - s), 0.0, 1.0)
-    return (np.stack([r, g, np.zeros_like(s)], axis=-1) * 255).astype(np.uint8)
+@dataclass(frozen=True, kw_only=True)
+class PointBatch:
+    """New data points as the dashboard draws them: ``seq``, receive time (s since 1970),
+    controller joint angles ``q`` (rad), temperatures (°C, by ``temperature_names``),
+    base-frame positions (m), measured pose errors ``(N, 6)`` (m, rad), and the lagging
+    model's prediction of those errors (None before the first model)."""
 
-
-def link_positions(robot: RobotModel, q_ctrl: np.ndarray) -> np.ndarray:
-    """Joint origins and the tool point ``(n + 2, 3)`` (m, base frame) for a link polyline."""
-    q = robot.description.to_dh(np.asarray(q_ctrl, dtype=float)[None])[0]
-    pin.framesForwardKinematics(robot.model, robot.data, q)
-    joints = [robot.data.oMi[i].translation.copy() for i in range(1, robot.model.njoints)]
-    tool = robot.data.oMf[robot.model.getFrameId("tool")].translation.copy()
-    return np.array([np.zeros(3), *joints, tool])
+    seq: np.ndarray
+    received_t: np.ndarray
+    q: np.ndarray
+    temperature_names: tuple[str, ...]
+    temperatures: np.ndarray
+    positions_m: np.ndarray
+    errors_m: np.ndarray
+    prediction: Evidential | None
 
 
 class Dashboard:
@@ -88,88 +81,154 @@ class Dashboard:
         recording_id: str = "robocal",
         arrow_scale: float = 50.0,
         max_points: int = 5000,
+        coverage_window: int = 200,
+        seed: int = 0,
     ) -> None:
         self.robot = robot
-        self.arrow_scale = arrow_scale
-        self.max_points = max_points
+        self.arrow_scale, self.max_points = arrow_scale, max_points
+        self.coverage_window, self.seed = coverage_window, seed
         self.rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id)
+        self.rec.set_log_time_enabled(False)  # the two timelines below are the only ones
+        self.rec.set_log_tick_enabled(False)
+        self.point = 0
         self._positions = np.zeros((0, 3))
         self._errors = np.zeros((0, 3))
-        self._pred_mm = np.zeros(0)
+        self._left_mm = np.zeros(0)
+        self._inside = np.zeros(0)
+        self._named: set[str] = set()
+        for path, style in SERIES_STYLE.items():
+            self._style(path, **style)
+        self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        self.blueprint = blueprint(reach_m(robot))
+
+    # sinks
 
     def save(self, path: str | Path) -> None:
         """Stream everything logged from now on into an .rrd file."""
         Path(path).parent.mkdir(parents=True, exist_ok=True)
-        self.rec.save(str(path), default_blueprint=blueprint())
+        self.rec.save(str(path), default_blueprint=self.blueprint)
 
-    def serve(self, web_port: int = 9090, grpc_port: int = 9876) -> str:
-        """Serve a web viewer on ``web_port``; return the gRPC URL it reads from."""
-        url = self.rec.serve_grpc(grpc_port=grpc_port, default_blueprint=blueprint())
-        rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=url)
-        return url
+    def serve(self, web_port: int = 9090, grpc_port: int = 9876, host: str = "localhost") -> str:
+        """Serve the recording on ``grpc_port`` and a web viewer on ``web_port``; return the
+        one URL that opens the live recording (``host``: how browsers reach this machine)."""
+        self.rec.serve_grpc(grpc_port=grpc_port, default_blueprint=self.blueprint)
+        rr.serve_web_viewer(web_port=web_port, open_browser=False)
+        return viewer_url(host, web_port, grpc_port)
 
     def connect(self, url: str | None = None) -> None:
         """Send to a running viewer (``rerun`` on this machine by default)."""
-        self.rec.connect_grpc(url, default_blueprint=blueprint())
+        self.rec.connect_grpc(url, default_blueprint=self.blueprint)
 
-    def log_metrics(self, m: Metrics) -> None:
-        """One learner update on the ``update`` timeline."""
-        rec = self.rec
-        rec.reset_time()
-        rec.set_time("update", sequence=m.model_version)
-        rec.log("metrics/test_error/mean", rr.Scalars(m.test_mean_mm))
-        rec.log("metrics/test_error/max", rr.Scalars(m.test_max_mm))
-        rec.log("metrics/batch_error/mean", rr.Scalars(m.batch_mean_mm))
-        rec.log("metrics/uncertainty/aleatoric", rr.Scalars(m.aleatoric_mm))
-        rec.log("metrics/uncertainty/epistemic", rr.Scalars(m.epistemic_mm))
-        rec.log("metrics/uncertainty/epistemic_p90", rr.Scalars(m.epistemic_p90_mm))
-        rec.log(
-            "metrics/uncertainty/epistemic_band",
-            rr.Scalars([0.0, m.epistemic_p90_mm]),
-            rr.SeriesLines(names=["0", "p90"], widths=[0.5, 0.5]),
+    # time
+
+    def _at(self, t: float) -> None:
+        self.rec.set_time(TIMELINE, timestamp=t)
+        self.rec.set_time("point", sequence=self.point)
+
+    def _style(self, path: str, kind: str = "lines", **style) -> None:
+        """Names and colours of an entity's series, once, static (kept on every timeline)."""
+        if path not in self._named:
+            self._named.add(path)
+            series = rr.SeriesPoints if kind == "points" else rr.SeriesLines
+            self.rec.log(path, series(**style), static=True)
+
+    def _columns(self, path: str, seq: np.ndarray, t: np.ndarray, values: np.ndarray) -> None:
+        values = np.asarray(values, dtype=float)
+        self.rec.send_columns(
+            path,
+            indexes=[
+                rr.TimeColumn(TIMELINE, timestamp=t),
+                rr.TimeColumn("point", sequence=seq),
+            ],
+            columns=rr.Scalars.columns(scalars=values.reshape(len(seq), -1)),
         )
-        rec.log("metrics/memory/size", rr.Scalars(float(m.memory_size)))
+
+    # messages
+
+    def log_metrics(self, m: Metrics, received_t: float | None = None) -> None:
+        """One learner update, at its receive time (s since 1970; now by default)."""
+        self._at(time.time() if received_t is None else received_t)
+        log = self.rec.log
+        log("metrics/test_error/mean", rr.Scalars(m.test_mean_mm))
+        log("metrics/test_error/max", rr.Scalars(m.test_max_mm))
+        log("metrics/batch_error/mean", rr.Scalars(m.batch_mean_mm))
+        log("metrics/uncertainty/aleatoric", rr.Scalars(m.aleatoric_mm))
+        log("metrics/uncertainty/epistemic", rr.Scalars(m.epistemic_mm))
+        log("metrics/uncertainty/epistemic_p90", rr.Scalars(m.epistemic_p90_mm))
+        log("metrics/memory/size", rr.Scalars(float(m.memory_size)))
         if m.memory_age:
-            rec.log("metrics/memory/age", rr.BarChart(np.asarray(m.memory_age, dtype=float)))
-        rec.log("metrics/model/version", rr.Scalars(float(m.model_version)))
+            log("metrics/memory/age", rr.BarChart(np.asarray(m.memory_age, dtype=float)))
+        log("metrics/model/version", rr.Scalars(float(m.model_version)))
+        quarantined = getattr(m, "quarantined", None)
+        if quarantined is not None:
+            log("metrics/quarantined", rr.Scalars(float(quarantined)))
 
-    def log_points(
-        self,
-        seq: np.ndarray,
-        q: np.ndarray,
-        positions_m: np.ndarray,
-        errors_m: np.ndarray,
-        predicted_error_m: np.ndarray | None,
-    ) -> None:
-        """New measured points: base-frame positions, measured error vectors (m), and the
-        current model's prediction of them (None before the first model)."""
-        pred_mm = (
-            np.linalg.norm(errors_m[:, :3], axis=1) * 1e3
-            if predicted_error_m is None
-            else np.linalg.norm(errors_m[:, :3] - predicted_error_m[:, :3], axis=1) * 1e3
+    def log_diagnostics(self, d: Diagnostics, received_t: float | None = None) -> None:
+        """A stage's drop counts by reason and in ``all`` (counts since the stage started)."""
+        self._at(time.time() if received_t is None else received_t)
+        stage = rr.escape_entity_path_part(d.stage)
+        self.rec.log(f"drops/{stage}/all", rr.Scalars(float(sum(d.dropped.values()))))
+        for reason, n in sorted(d.dropped.items()):
+            self.rec.log(f"drops/{stage}/{rr.escape_entity_path_part(reason)}", rr.Scalars(n))
+
+    def log_compensation(self, reply: CompensationReply, received_t: float | None = None) -> None:
+        """One compensation answer: predicted correction and epistemic std of the position
+        (mm), the corrected command's solver residual (mm), trusted (1) or not (0)."""
+        self._at(time.time() if received_t is None else received_t)
+        log = self.rec.log
+        log("compensation/correction", rr.Scalars(float(np.linalg.norm(reply.error[:3]) * 1e3)))
+        log("compensation/residual", rr.Scalars(reply.residual_m * 1e3))
+        log(
+            "compensation/epistemic",
+            rr.Scalars(float(np.linalg.norm(np.sqrt(reply.epistemic[:3])) * 1e3)),
         )
-        self.rec.reset_time()
-        for s, e in zip(seq, pred_mm, strict=True):
-            self.rec.set_time("point", sequence=int(s))
-            self.rec.log("points/prediction_error", rr.Scalars(float(e)))
+        log("compensation/trusted", rr.Scalars(float(reply.trusted)))
+
+    def log_points(self, b: PointBatch) -> None:
+        """New data points: per-point series on both timelines, then the 3-D cell."""
+        if len(b.seq) == 0:
+            return
+        seq, t = np.asarray(b.seq, dtype=np.int64), np.asarray(b.received_t, dtype=float)
+        s = score_points(b.errors_m, b.prediction, seed=self.seed + int(seq[0]))
+        col = self._columns
+        col("points/error/measured", seq, t, s.measured_mm)
+        col("points/left/error", seq, t, s.left_mm)
+        if s.predicted_mm is not None:
+            col("points/error/predicted", seq, t, s.predicted_mm)
+            col("points/error/interval", seq, t, s.predicted_band_mm)
+            col("points/error/epistemic", seq, t, s.predicted_epistemic_mm)
+            col("points/left/interval", seq, t, s.left_band_mm)
+            col("points/left/epistemic", seq, t, s.left_epistemic_mm)
+            cov = rolling_coverage(self._inside, s.inside, self.coverage_window)
+            self._inside = np.concatenate([self._inside, s.inside.mean(axis=1)])
+            self._inside = self._inside[-self.coverage_window :]
+            col("coverage/interval_90", seq, t, np.column_stack([cov, np.full(len(cov), 0.9)]))
+        n = self.robot.description.n_joints
+        self._style("inputs/joints", names=[f"J{i}" for i in range(1, n + 1)])
+        col("inputs/joints", seq, t, np.asarray(b.q, dtype=float) * RAD_TO_DEG)
+        if b.temperature_names:
+            self._style("inputs/temperatures", names=list(b.temperature_names))
+            col("inputs/temperatures", seq, t, b.temperatures)
+        self.point = max(self.point, int(seq.max()))
+        self._log_world(b, s.left_mm, t.max())
+
+    def _log_world(self, b: PointBatch, left_mm: np.ndarray, t: float) -> None:
         keep = self.max_points
-        self._positions = np.concatenate([self._positions, positions_m])[-keep:]
-        self._errors = np.concatenate([self._errors, errors_m[:, :3]])[-keep:]
-        self._pred_mm = np.concatenate([self._pred_mm, pred_mm])[-keep:]
-        self.rec.set_time("point", sequence=int(seq[-1]))
+        self._positions = np.concatenate([self._positions, b.positions_m])[-keep:]
+        self._errors = np.concatenate([self._errors, b.errors_m[:, :3]])[-keep:]
+        self._left_mm = np.concatenate([self._left_mm, left_mm])[-keep:]
+        self._at(t)
+        scale = float(np.percentile(self._left_mm, 95))
         self.rec.log(
             "world/points",
-            rr.Points3D(
-                self._positions,
-                colors=error_colors(self._pred_mm, float(np.percentile(self._pred_mm, 95))),
-                radii=0.01,
-            ),
+            rr.Points3D(self._positions, colors=error_colors(self._left_mm, scale), radii=0.012),
         )
         self.rec.log(
             "world/errors",
             rr.Arrows3D(origins=self._positions, vectors=self._errors * self.arrow_scale),
         )
-        self.rec.log("world/robot", rr.LineStrips3D([link_positions(self.robot, q[-1])]))
+        for name, archetype in robot_archetypes(self.robot, b.q[-1]).items():
+            self.rec.log(f"world/robot/{name}", archetype)
 
     def flush(self) -> None:
         self.rec.flush()
@@ -180,21 +239,25 @@ class Dashboard:
         self.rec.disconnect()
 
 
-def read_scalars(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """The scalar series of an .rrd: entity path -> (sequence index, values ``(T, k)``)."""
-    parts: dict[str, list[tuple[list, list]]] = {}
+def read_scalars(
+    path: str | Path, timeline: str = "point"
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The scalar series of an .rrd: entity path -> (``timeline`` index: ``point`` seq or
+    ``time`` as datetime64, values ``(T, k)``)."""
+    parts: dict[str, list[tuple[np.ndarray, list]]] = {}
     for chunk in RrdReader(str(path)).stream():
         batch = chunk.to_record_batch()
-        names = batch.schema.names
-        if "Scalars:scalars" not in names:
+        if "Scalars:scalars" not in batch.schema.names or chunk.is_static:
             continue
-        index = "update" if "update" in names else "point"
         parts.setdefault(chunk.entity_path, []).append(
-            (batch.column(index).to_pylist(), batch.column("Scalars:scalars").to_pylist())
+            (
+                batch.column(timeline).to_numpy(zero_copy_only=False),
+                batch.column("Scalars:scalars").to_pylist(),
+            )
         )
     out = {}
     for entity, chunks in parts.items():
-        t = np.concatenate([np.asarray(c[0]) for c in chunks])
+        t = np.concatenate([c[0] for c in chunks])
         v = np.concatenate([np.asarray(c[1], dtype=float) for c in chunks])
         order = np.argsort(t, kind="stable")
         out[entity] = (t[order], v[order])

@@ -134,13 +134,15 @@ def run_demo(
     learner: LearnerStageConfig = DEMO_LEARNER,
     period_s: float = 0.6,
     settle_s: float = 0.3,
+    serve: bool = False,
 ) -> DemoResult:
     """Stream an ``n``-point sim campaign through the pipeline; accuracy on held-out points.
 
     ``progress(k)`` is called with the number of data points the window has emitted so far;
     ``learner`` and ``period_s`` (s between visits) make short runs for tests; the default
     re-times the campaign to a visit every 0.6 s (0.3 s settled), so the reference campaign's
-    3004 points stream in about two minutes at 125 Hz joint sampling.
+    3004 points stream in about two minutes at 125 Hz joint sampling. ``serve`` also serves
+    the live dashboard (``DashboardConfig`` ports; its URL: ``stream.dashboard.viewer_url``).
     """
     if n < 2 * learner.continual.init:
         raise ConfigError(f"demo needs n >= {2 * learner.continual.init} points, got {n}")
@@ -156,6 +158,7 @@ def run_demo(
         cfg,
         learner=replace(learner, seed=seed),
         window=replace(cfg.window, batch_size=learner.continual.batch),
+        dashboard=replace(cfg.dashboard, serve=serve),
     )
     log_file = None
     if logger is None:

@@ -2,6 +2,7 @@
 
 robocal run --config deploy/robocal.example.toml
 robocal demo --out out --n 1000 --seed 0 --json
+robocal demo --serve          # prints the URL that opens the live dashboard in a browser
 """
 
 from __future__ import annotations
@@ -9,8 +10,12 @@ from __future__ import annotations
 import argparse
 import sys
 from dataclasses import asdict
+from typing import TYPE_CHECKING
 
 from stream.cli._base import CLIUsageError, Command, add_json_flag, emit
+
+if TYPE_CHECKING:
+    from stream.config import DashboardConfig
 
 
 class RunCommand(Command):
@@ -24,7 +29,17 @@ class RunCommand(Command):
         from stream.config import load_config
         from stream.daemon import run_until_signal
 
-        return run_until_signal(load_config(args.config))
+        cfg = load_config(args.config)
+        if cfg.dashboard is not None and cfg.dashboard.serve:
+            print_dashboard_url(cfg.dashboard)
+        return run_until_signal(cfg)
+
+
+def print_dashboard_url(dc: DashboardConfig) -> None:
+    """One line on stderr with the URL that opens the live dashboard in a browser."""
+    from stream.dashboard import viewer_url
+
+    print(f"dashboard: {viewer_url(dc.host, dc.web_port, dc.grpc_port)}", file=sys.stderr)
 
 
 class ReplayCommand(Command):
@@ -61,15 +76,25 @@ class DemoCommand(Command):
             "--n", type=int, default=3004, help="points in the campaign (the reference: 3004)"
         )
         parser.add_argument("--seed", type=int, default=0, help="campaign and training seed")
+        parser.add_argument(
+            "--serve",
+            action="store_true",
+            help="serve the live dashboard while the demo runs and print its URL",
+        )
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
         from tqdm import tqdm
 
+        from stream.config import DashboardConfig
         from stream.demo import run_demo
 
+        if args.serve:
+            print_dashboard_url(DashboardConfig(serve=True))
         with tqdm(total=args.n, unit="pt", file=sys.stderr, desc="demo") as bar:
-            result = run_demo(args.out, args.n, args.seed, lambda k: bar.update(k - bar.n))
+            result = run_demo(
+                args.out, args.n, args.seed, lambda k: bar.update(k - bar.n), serve=args.serve
+            )
         learned, comp = result.learned, result.compensation
         reached = comp["reached_after_mean_mm"]
         reached_mm = "none" if reached is None else f"{reached:.3f} mm"

@@ -8,7 +8,8 @@ starts with its reason (bad request, no model yet). Answers go through
 ``trusted: false`` with a coded reason. The service follows ``.../model`` and, on start, asks
 the ``.../model`` queryable for the latest snapshot; a snapshot is adopted only when
 :class:`~stream.trust.ModelGate` says it belongs to this cell (a refusal is counted, logged
-once per kind and shown on ``diagnostics``; the last good model stays).
+once per kind and shown on ``diagnostics``; the last good model stays). Every answer is also
+put on ``.../compensate``, where the dashboard draws it.
 """
 
 from __future__ import annotations
@@ -109,4 +110,6 @@ class CompensationService(Stage):
             self.counter.drop(exc.reason)
             raise
         reply = guarded_compensate(model, self.robot_model, req, self.cfg, version, self.guard)
-        query.reply(self.key("compensate"), encode(reply))
+        payload = encode(reply)
+        query.reply(self.key("compensate"), payload)
+        self.put("compensate", payload)  # a reply reaches only its asker; watchers see this

@@ -1,9 +1,11 @@
-"""The dashboard stage: metrics, points and models of one robot into a Rerun recording.
+"""The dashboard stage: metrics, points, models, diagnostics and compensation answers of one
+robot into a Rerun recording.
 
 A model is drawn only when :class:`~stream.trust.ModelGate` adopts it (as the compensation
 service does). A point is logged only when it fits the robot and the points before it (joint
 count, secondary encoders, thermometers, frame; ``invalid`` otherwise), so one odd point never
-spoils the points logged with it.
+spoils the points logged with it. Compensation answers are the replies the compensation
+service also puts on ``.../compensate`` (a query's own reply reaches only its asker).
 """
 
 from __future__ import annotations
@@ -15,9 +17,17 @@ from kinematics.model import RobotModel
 from learner.features import dataset_features, dataset_labels
 from learner.model import ErrorModel
 from stream.bus import Received
-from stream.dashboard import Dashboard
+from stream.compensation import CompensationReply
+from stream.dashboard import Dashboard, PointBatch
 from stream.log import JsonLogger
-from stream.messages import DataPoint, Metrics, RejectedMessageError, decode, split_key
+from stream.messages import (
+    DataPoint,
+    Diagnostics,
+    Metrics,
+    RejectedMessageError,
+    decode,
+    split_key,
+)
 from stream.points import points_to_dataset
 from stream.stages._base import Stage
 from stream.stages.compensation_service import adopt
@@ -25,7 +35,8 @@ from stream.trust import ModelGate, ModelTrustConfig
 
 
 class DashboardStage(Stage):
-    """Logs learner metrics, and new points with the current model's prediction error."""
+    """Logs learner metrics, stage drops, compensation answers, and new points with the
+    prediction of the model the stage holds when they arrive (the lagging model)."""
 
     name = "dashboard"
 
@@ -44,17 +55,21 @@ class DashboardStage(Stage):
         self.dashboard, self.robot_model, self.T_W_0 = dashboard, robot_model, T_W_0
         self.gate = ModelGate(robot, robot_model.description, trust)
         self.model: ErrorModel | None = None
-        self._pending: list[DataPoint] = []
+        self._pending: list[tuple[DataPoint, float]] = []
         self._shape: tuple | None = None
-        for stream in ("metrics", "points", "model"):
+        for stream in ("metrics", "points", "model", "diagnostics", "compensate"):
             self.subscribe(stream)
 
     def handle(self, item: Received) -> None:
-        stream = split_key(item.key)[2]
+        stream, t = split_key(item.key)[2], item.received_t
         if stream == "metrics":
-            self.dashboard.log_metrics(decode(item.payload, Metrics))
+            self.dashboard.log_metrics(decode(item.payload, Metrics), t)
         elif stream == "points":
-            self._pending.append(self._fits(decode(item.payload, DataPoint)))
+            self._pending.append((self._fits(decode(item.payload, DataPoint)), t))
+        elif stream == "diagnostics":
+            self.dashboard.log_diagnostics(decode(item.payload, Diagnostics), t)
+        elif stream == "compensate":
+            self.dashboard.log_compensation(decode(item.payload, CompensationReply), t)
         else:
             adopted = adopt(self, self.gate, item.payload)
             if adopted is None:
@@ -83,18 +98,23 @@ class DashboardStage(Stage):
     def _log_points(self) -> None:
         if not self._pending:
             return
-        points, self._pending = self._pending, []
+        pending, self._pending = self._pending, []
+        points = [p for p, _ in pending]
         ds = points_to_dataset(points, self.robot_model.description.name, self.T_W_0)
-        errors = dataset_labels(ds, self.robot_model)
-        predicted = None
+        prediction = None
         if self.model is not None:
-            predicted = self.model.predict(dataset_features(ds, self.model.spec)).mean
+            prediction = self.model.predict(dataset_features(ds, self.model.spec))
         self.dashboard.log_points(
-            np.array([p.seq for p in points]),
-            ds.q(),
-            ds.measured_poses_base()[:, :3, 3],
-            errors,
-            predicted,
+            PointBatch(
+                seq=np.array([p.seq for p in points]),
+                received_t=np.array([t for _, t in pending]),
+                q=ds.q(),
+                temperature_names=points[0].temperature_names,
+                temperatures=np.array([p.temperatures for p in points], dtype=float),
+                positions_m=ds.measured_poses_base()[:, :3, 3],
+                errors_m=dataset_labels(ds, self.robot_model),
+                prediction=prediction,
+            )
         )
 
     def finish(self) -> None:

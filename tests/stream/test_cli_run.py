@@ -30,12 +30,15 @@ def test_short_demo_writes_rrd_and_mcap_and_learns(tmp_path):
     assert comp["n"] == 12 and comp["after_mean_mm"] < comp["before_mean_mm"]
     assert 1 <= comp["reached"] <= 12 and comp["reached_after_mean_mm"] <= comp["after_mean_mm"]
     series = read_scalars(result.rrd)
-    versions, test_mean = series["/metrics/test_error/mean"]
+    versions, test_mean = (
+        series["/metrics/model/version"][1][:, 0],
+        series["/metrics/test_error/mean"][1],
+    )
     assert list(versions) == list(range(1, result.model_version + 1))
     assert np.isclose(test_mean[-1, 0], result.learned["mean_mm"])
     for name in ("epistemic", "aleatoric"):
         assert len(series[f"/metrics/uncertainty/{name}"][1]) == result.model_version
-    assert len(series["/points/prediction_error"][1]) == result.n_points
+    assert len(series["/points/left/error"][1]) == result.n_points
     keys = {r.key.rsplit("/", 1)[1] for r in read_mcap(result.mcap)}
     assert {"joints", "tracker", "temperature", "points", "batches", "model", "metrics"} <= keys
     log = [json.loads(x) for x in (tmp_path / "robocal.log.jsonl").read_text().splitlines()]

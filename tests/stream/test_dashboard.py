@@ -1,20 +1,39 @@
-"""The Rerun dashboard writes an .rrd that reads back with its series and 3-D entities."""
+"""The Rerun dashboard: what it writes to an .rrd, its bands and coverage, the robot's solid
+geometry, and the one URL that opens a served recording."""
 
 import socket
+import time
+from dataclasses import dataclass
+from urllib.parse import parse_qs, urlparse
 
 import numpy as np
 import pytest
 from rerun.chunk import RrdReader
+from scipy import stats
+from scipy.spatial.transform import Rotation
 
 from kinematics.description import load_description
 from kinematics.model import RobotModel
+from learner.evidential import Evidential
 from stream.bus import free_port
-from stream.dashboard import Dashboard, blueprint, error_colors, link_positions, read_scalars
-from stream.messages import Metrics
+from stream.compensation import CompensationReply
+from stream.dashboard import Dashboard, PointBatch, read_scalars, viewer_url
+from stream.dashboard_robot import robot_archetypes, segments, skeleton, z_to
+from stream.dashboard_scores import error_colors, norm_band, rolling_coverage, score_points
+from stream.messages import Diagnostics, Metrics
+
+UR10 = RobotModel(load_description("ur10"))
 
 
-def metrics(v: int) -> Metrics:
-    return Metrics(
+@dataclass(frozen=True, kw_only=True)
+class QuarantineMetrics(Metrics):
+    """Metrics with the learner's count of quarantined points (drawn when present)."""
+
+    quarantined: int = 0
+
+
+def metrics(v: int, **extra) -> Metrics:
+    fields = dict(
         model_version=v,
         n_seen=50 * v,
         memory_size=40,
@@ -27,61 +46,136 @@ def metrics(v: int) -> Metrics:
         epistemic_p90_mm=0.9 / v,
         memory_age=(20, 10, 10),
     )
+    return QuarantineMetrics(**fields, **extra) if extra else Metrics(**fields)
 
 
-def test_rrd_holds_error_and_uncertainty_series(tmp_path):
-    robot = RobotModel(load_description("ur10"))
-    dash = Dashboard(robot)
+def evidential(mean: np.ndarray, scale_m: float = 1e-3) -> Evidential:
+    """A NIG prediction with Student-t scale ``scale_m`` and 2 alpha = 8 degrees of freedom."""
+    n = len(mean)
+    nu, alpha = np.full((n, 6), 1.0), np.full((n, 6), 4.0)
+    return Evidential(gamma=mean, nu=nu, alpha=alpha, beta=np.full((n, 6), 2.0 * scale_m**2))
+
+
+def batch(first: int, n: int, rng, prediction: bool) -> PointBatch:
+    errors = rng.normal(0, 1e-3, (n, 6))
+    return PointBatch(
+        seq=np.arange(first, first + n),
+        received_t=time.time() + np.arange(n) * 0.1,
+        q=rng.uniform(-1, 1, (n, 6)),
+        temperature_names=("ambient", "j2_motor"),
+        temperatures=rng.normal(22, 1, (n, 2)),
+        positions_m=rng.normal(0, 1, (n, 3)),
+        errors_m=errors,
+        prediction=evidential(errors * 0.5) if prediction else None,
+    )
+
+
+def test_rrd_holds_every_trace_on_both_timelines(tmp_path):
+    dash = Dashboard(UR10)
     path = tmp_path / "d.rrd"
     dash.save(path)
     rng = np.random.default_rng(0)
     for v in (1, 2, 3):
-        dash.log_metrics(metrics(v))
-        errors = rng.normal(0, 1e-3, (4, 6))
-        dash.log_points(
-            np.arange(4) + 4 * v, np.zeros((4, 6)), rng.normal(0, 1, (4, 3)), errors, errors * 0.5
-        )
+        dash.log_points(batch(4 * v, 4, rng, prediction=v > 1))
+        dash.log_metrics(metrics(v, quarantined=v - 1))
+        dash.log_diagnostics(Diagnostics(stage="window", accepted=10, dropped={"late": v}))
+    reply = CompensationReply(
+        model_version=3,
+        error=(3e-4, 4e-4, 0.0, 0.0, 0.0, 0.0),
+        lo=(0.0,) * 6,
+        hi=(0.0,) * 6,
+        level=0.9,
+        aleatoric=(0.0,) * 6,
+        epistemic=(1e-8, 0.0, 0.0, 0.0, 0.0, 0.0),
+        q_corrected=(0.0,) * 6,
+        iterations=3,
+        residual_m=2e-6,
+        trusted=True,
+    )
+    dash.log_compensation(reply)
     dash.close()
-    series = read_scalars(path)
-    t, mean = series["/metrics/test_error/mean"]
-    np.testing.assert_array_equal(t, [1, 2, 3])
+    s = read_scalars(path)
+    t, mean = s["/metrics/test_error/mean"]
+    assert list(t) == [7, 11, 15]  # the newest point seq when each update arrived
     np.testing.assert_allclose(mean[:, 0], [1.0, 0.5, 1 / 3])
-    for name in ("epistemic", "aleatoric", "epistemic_p90"):
-        assert len(series[f"/metrics/uncertainty/{name}"][1]) == 3
-    t, band = series["/metrics/uncertainty/epistemic_band"]
-    assert band.shape == (3, 2)
-    t, per_point = series["/points/prediction_error"]
-    assert list(t) == list(range(4, 16)) and np.all(per_point > 0)
+    np.testing.assert_array_equal(s["/metrics/quarantined"][1][:, 0], [0, 1, 2])
+    np.testing.assert_array_equal(s["/drops/window/late"][1][:, 0], [1, 2, 3])
+    np.testing.assert_array_equal(s["/drops/window/all"][1][:, 0], [1, 2, 3])
+    np.testing.assert_allclose(s["/compensation/correction"][1][0, 0], 0.5)
+    np.testing.assert_allclose(s["/compensation/residual"][1][0, 0], 2e-3)
+    np.testing.assert_allclose(s["/compensation/epistemic"][1][0, 0], 0.1)
+    assert list(s["/points/left/error"][0]) == list(range(4, 16))
+    assert list(s["/points/error/interval"][0]) == list(range(8, 16))  # from the first model
+    assert s["/inputs/temperatures"][1].shape == (12, 2)
+    assert s["/coverage/interval_90"][1].shape == (8, 2)
+    for chunk in RrdReader(str(path)).stream():
+        if not chunk.is_static:
+            assert sorted(chunk.timeline_names) == ["point", "time"], chunk.entity_path
     entities = {c.entity_path for c in RrdReader(str(path)).stream()}
-    assert {"/world/points", "/world/errors", "/world/robot", "/metrics/memory/age"} <= entities
-    assert RrdReader(str(path)).blueprints()
+    assert {"/world/points", "/world/errors", "/world/robot/links", "/world/robot/joints"} <= (
+        entities
+    )
 
 
-def test_links_end_at_the_tool_and_colours_saturate():
-    robot = RobotModel(load_description("ur10"))
+def test_norm_band_matches_the_chi_distribution_and_student_t_is_wider():
+    rng = np.random.default_rng(1)
+    sigma = np.full((2, 3), 2.0)
+    band = norm_band(np.zeros((2, 3)), sigma, None, 0.9, rng, n_draws=40_000)
+    expected = 2.0 * np.sqrt(stats.chi2.ppf([0.05, 0.95], df=3))
+    np.testing.assert_allclose(band, np.tile(expected, (2, 1)), rtol=0.03)
+    heavy = norm_band(np.zeros((1, 3)), sigma[:1], np.full((1, 3), 3.0), 0.9, rng, 40_000)
+    assert heavy[0, 1] > 1.1 * expected[1]
+    far = norm_band(np.array([[100.0, 0, 0]]), np.ones((1, 3)), None, 0.9, rng, 40_000)
+    np.testing.assert_allclose(far[0], 100.0 + stats.norm.ppf([0.05, 0.95]), atol=0.1)
+
+
+def test_scores_of_a_perfect_prediction_and_rolling_coverage():
+    e = np.random.default_rng(2).normal(0, 1e-3, (5, 6))
+    s = score_points(e, evidential(e.copy()))
+    np.testing.assert_allclose(s.left_mm, 0.0, atol=1e-12)
+    np.testing.assert_allclose(s.predicted_mm, s.measured_mm)
+    assert s.inside.all() and np.all(s.left_band_mm[:, 0] < s.left_band_mm[:, 1])
+    assert score_points(e, None).predicted_mm is None
+    inside = np.array([[1, 1, 1], [0, 0, 0], [1, 1, 0]], dtype=bool)
+    cov = rolling_coverage(np.array([1.0, 0.0]), inside, window=3)
+    np.testing.assert_allclose(cov, [2 / 3, 1 / 3, (1 + 0 + 2 / 3) / 3])
+
+
+def test_robot_is_solid_links_ending_at_the_tool():
     q = np.array([0.1, -1.0, 1.2, 0.3, 0.5, 0.0])
-    links = link_positions(robot, q)
-    np.testing.assert_allclose(links[-1], robot.fk(q[None])[0, :3, 3], atol=1e-12)
+    points, axes = skeleton(UR10, q)
+    np.testing.assert_allclose(points[-1], UR10.fk(q[None])[0, :3, 3], atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(axes, axis=1), 1.0)
+    start, length, quat = segments(points)
+    assert np.isclose(length.sum(), np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+    parts = robot_archetypes(UR10, q)
+    assert set(parts) == {"links", "joints", "tool"}
+    u = np.array([[0, 0, 1.0], [0, 0, -1.0], [1.0, 0, 0], [0.6, 0, 0.8]])
+    np.testing.assert_allclose(Rotation.from_quat(z_to(u)).apply([0, 0, 1.0]), u, atol=1e-12)
     c = error_colors(np.array([0.0, 1.0, 5.0]), scale_mm=2.0)
     assert c[0].tolist() == [0, 255, 0] and c[2].tolist() == [255, 0, 0]
-    assert blueprint() is not None
 
 
-@pytest.mark.parametrize("value", [float("nan")])
-def test_metrics_with_nan_before_a_test_set_are_logged(tmp_path, value):
-    dash = Dashboard(RobotModel(load_description("ur10")))
+def test_viewer_url_carries_the_recording_address():
+    url = urlparse(viewer_url("cell-pc", 9090, 9876))
+    assert (url.scheme, url.netloc, url.path) == ("http", "cell-pc:9090", "/")
+    assert parse_qs(url.query) == {"url": ["rerun+http://cell-pc:9876/proxy"]}
+
+
+def test_metrics_with_nan_before_a_test_set_are_logged(tmp_path):
+    dash = Dashboard(UR10)
     dash.save(tmp_path / "n.rrd")
-    dash.log_metrics(Metrics(**{**metrics(1).__dict__, "test_mean_mm": value}))
+    dash.log_metrics(Metrics(**{**metrics(1).__dict__, "test_mean_mm": float("nan")}))
     dash.close()
     assert np.isnan(read_scalars(tmp_path / "n.rrd")["/metrics/test_error/mean"][1][0, 0])
 
 
 @pytest.mark.integration
 def test_serve_opens_the_web_viewer_and_grpc_ports():
-    dash = Dashboard(RobotModel(load_description("ur10")))
+    dash = Dashboard(UR10)
     web, grpc = free_port(), free_port()
-    url = dash.serve(web_port=web, grpc_port=grpc)
-    assert url.endswith(f":{grpc}/proxy")
+    url = dash.serve(web_port=web, grpc_port=grpc, host="127.0.0.1")
+    assert url == viewer_url("127.0.0.1", web, grpc)
     dash.log_metrics(metrics(1))
     for port in (web, grpc):
         socket.create_connection(("127.0.0.1", port), timeout=5).close()
