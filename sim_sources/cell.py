@@ -23,6 +23,7 @@ from kinematics.effects import Conditions, Perturbation, ctrl_to_dh_delta
 from kinematics.errors import ConfigError
 from kinematics.model import RobotModel
 from kinematics.transforms import pose_error, skew_to_rotation, xyz_quat_from_transform
+from sim_sources.iso_cube import make_cube_program
 from sim_sources.program import Program, make_program
 from sim_sources.scenarios import Scenario
 from sim_sources.thermal import ThermalHistory
@@ -68,7 +69,12 @@ class SimulatedCell:
         self.model = RobotModel(load_description(scenario.robot))
         self.truth = TrueRobot(self.model, scenario.build_effects(self.model.description))
         rng = np.random.default_rng(self.seed)
-        self.program: Program = make_program(self.model, n, rng, scenario.program, scenario.cell)
+        if scenario.program.kind == "iso9283":
+            self.program: Program = make_cube_program(
+                self.model, n, scenario.program, scenario.cell
+            )
+        else:
+            self.program = make_program(self.model, n, rng, scenario.program, scenario.cell)
         self.thermal = ThermalHistory.compute(
             scenario.thermal, *self.program.heating_schedule(), self.program.duration_s
         )
@@ -171,6 +177,7 @@ def simulate(
             "robot_seed": scenario.robot_seed,
             "effect_options": {e.name: e.options() for e, _ in cell.truth.effects if e.options()},
             "temperature_sensors": list(cell.temperature_names),
+            **({"program": cell.program.info} if cell.program.info else {}),
             "effects": {
                 e.name: dict(zip(e.parameter_names(desc), map(float, params[e.name]), strict=True))
                 for e, _ in cell.truth.effects

@@ -27,6 +27,8 @@ from kinematics.transforms import invert, transform_from_xyz_rpy
 
 #: Phase kinds: measuring blocks, and the warm-up / cool-down phases between them.
 PHASE_KINDS = ("measure", "warm_up", "cool_down")
+#: Program kinds: random measurable targets, or the ISO 9283 cube pose test (sim_sources.iso_cube).
+PROGRAM_KINDS = ("random", "iso9283")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -54,8 +56,10 @@ def measurable(T_0_S: np.ndarray, cell: CellConfig) -> np.ndarray:
 
 @dataclass(frozen=True, kw_only=True)
 class ProgramConfig:
-    """Motion timing (rad/s, s), phases (s, heating 0..1) and load episodes (kg, N)."""
+    """Program kind (:data:`PROGRAM_KINDS`), motion timing (rad/s, s), phases (s, heating
+    0..1) and load episodes (kg, N)."""
 
+    kind: str = "random"
     joint_speed_rad_s: float = 0.8
     approach_rad: float = float(np.deg2rad(2.0))
     approach_time_s: float = 1.0
@@ -72,6 +76,8 @@ class ProgramConfig:
     air_spring_levels_n: tuple[float, ...] = (0.0, 1000.0, 2000.0, 3000.0)
 
     def __post_init__(self) -> None:
+        if self.kind not in PROGRAM_KINDS:
+            raise ConfigError(f"program.kind must be one of {PROGRAM_KINDS}, got {self.kind!r}")
         for key in ("joint_speed_rad_s", "approach_rad", "approach_time_s", "measure_s"):
             if not getattr(self, key) > 0:
                 raise ConfigError(f"program.{key} must be > 0, got {getattr(self, key)}")
@@ -139,6 +145,7 @@ class Program:
     payload_kg: np.ndarray
     air_spring_n: np.ndarray
     phases: tuple[Phase, ...]
+    info: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return int(self.q.shape[0])
@@ -222,11 +229,14 @@ def make_program(
     config: ProgramConfig | None = None,
     cell: CellConfig | None = None,
 ) -> Program:
-    """A seeded program of ``n`` measurable visits with phases and load episodes."""
+    """A seeded program of ``n`` measurable visits with phases and load episodes (the
+    ``random`` kind; ``iso9283`` is :func:`sim_sources.iso_cube.make_cube_program`)."""
     config = config or ProgramConfig()
     cell = cell or CellConfig()
     if n < 1:
         raise ConfigError(f"a program needs n >= 1 points, got {n}")
+    if config.kind != "random":
+        raise ConfigError(f"make_program builds random programs, got kind {config.kind!r}")
     q = sample_targets(model, cell, n, config.approach_rad, rng)
     approach = balanced_signs(n, q.shape[1], rng)
     q_pre = q - approach * config.approach_rad

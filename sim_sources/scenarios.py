@@ -165,6 +165,12 @@ def _scenarios() -> dict[str, Scenario]:
     }
     for name in ALL_EFFECTS:
         out[name] = Scenario(name=name, summary=f"only {name}, with noise", effects=(name,))
+    out["iso9283"] = Scenario(
+        name="iso9283",
+        summary="ISO 9283 pose test on the paper robot: 5 poses of the largest reachable cube, "
+        "n/5 cycles (n = 150: the standard's 30)",
+        program=ProgramConfig(kind="iso9283"),
+    )
     return out
 
 
