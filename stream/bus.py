@@ -9,12 +9,13 @@ the Zenoh runtime and never calls back into Zenoh.
 from __future__ import annotations
 
 import json
+import os
 import queue
 import socket
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import zenoh
 
@@ -24,29 +25,82 @@ MODES = ("peer", "client", "router")
 
 
 @dataclass(frozen=True, kw_only=True)
+class TlsConfig:
+    """Mutual TLS (PEM paths): the line's CA, this process's role certificate and its key.
+
+    The certificate's common name is the role the router's access control knows it by
+    (``robocal certs`` makes them; deploy/zenohd.json5 lists the roles).
+    """
+
+    ca: str
+    cert: str
+    key: str
+
+    def check_files(self) -> None:
+        """ConfigError naming the first file that cannot be read."""
+        for name in ("ca", "cert", "key"):
+            path = getattr(self, name)
+            if not os.access(path, os.R_OK):
+                raise ConfigError(f"bus.tls.{name}: cannot read {path!r}")
+
+
+@dataclass(frozen=True, kw_only=True)
 class BusConfig:
-    """How to join the bus: mode, listen/connect endpoints (``tcp/host:port``), scouting."""
+    """How to join the bus: mode, listen/connect endpoints (``tcp/host:port``, or
+    ``tls/host:port`` with ``tls``), scouting; or a whole Zenoh config file (``zenoh_config``)."""
 
     mode: str = "peer"
     listen: tuple[str, ...] = ()
     connect: tuple[str, ...] = ()
     multicast_scouting: bool = True
+    #: ``tls = {ca, cert, key}``: every endpoint is ``tls/`` and both ends show certificates.
+    tls: TlsConfig | None = None
+    #: A Zenoh JSON5 config file used as it is (the other bus keys must then be left out).
+    zenoh_config: str | None = None
 
     def __post_init__(self) -> None:
+        if isinstance(self.tls, dict):  # from TOML: tls = {ca = ..., cert = ..., key = ...}
+            try:
+                object.__setattr__(self, "tls", TlsConfig(**self.tls))
+            except TypeError as exc:
+                raise ConfigError(f"bus.tls needs ca, cert and key: {exc}") from None
+        if self.zenoh_config is not None:
+            if replace(self, zenoh_config=None) != BusConfig():
+                raise ConfigError(
+                    "bus.zenoh_config names a whole Zenoh config: leave the other bus keys "
+                    "out (set them in the file)"
+                )
+            return
         if self.mode not in MODES:
             raise ConfigError(f"bus.mode must be one of {MODES}, got {self.mode!r}")
+        if self.tls is not None and (self.mode != "client" or self.listen):
+            # a peer would also listen and meet other peers directly, past the router's rules
+            raise ConfigError(
+                "bus.tls needs mode = 'client' and no listen endpoints: the router enforces "
+                "the line's access control (deploy/zenohd.json5)"
+            )
         for ep in (*self.listen, *self.connect):
             if "/" not in ep:
                 raise ConfigError(f"bus endpoint must look like tcp/127.0.0.1:7447, got {ep!r}")
+            if (self.tls is not None) != ep.startswith("tls/"):
+                raise ConfigError(
+                    f"bus endpoint {ep!r}: with bus.tls every endpoint is tls/host:port, "
+                    "without it none is"
+                )
         if self.mode == "client" and not self.connect and not self.multicast_scouting:
             raise ConfigError("bus.mode 'client' needs connect endpoints or multicast scouting")
 
     @classmethod
-    def loopback(cls, port: int, listen: bool) -> BusConfig:
-        """A test/demo config on ``tcp/127.0.0.1:<port>`` with scouting off."""
-        ep = (f"tcp/127.0.0.1:{port}",)
+    def loopback(cls, port: int, listen: bool, tls: TlsConfig | None = None) -> BusConfig:
+        """A test/demo config on ``tcp/127.0.0.1:<port>``, scouting off; with ``tls`` a client
+        of the router on ``tls/127.0.0.1:<port>``."""
+        ep = (f"{'tcp' if tls is None else 'tls'}/127.0.0.1:{port}",)
         return cls(
-            listen=ep if listen else (), connect=() if listen else ep, multicast_scouting=False
+            mode="peer" if tls is None else "client",
+            listen=ep if listen else (),
+            connect=() if listen else ep,
+            multicast_scouting=False,
+            tls=tls,
         )
 
 
@@ -57,8 +111,13 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def open_session(cfg: BusConfig) -> zenoh.Session:
-    """Open a Zenoh session configured by ``cfg``."""
+def zenoh_config(cfg: BusConfig) -> zenoh.Config:
+    """The Zenoh config of ``cfg`` (ConfigError for an unreadable file or certificate)."""
+    if cfg.zenoh_config is not None:
+        try:
+            return zenoh.Config.from_file(cfg.zenoh_config)
+        except (zenoh.ZError, OSError, ValueError) as exc:
+            raise ConfigError(f"bus.zenoh_config {cfg.zenoh_config!r}: {exc}") from None
     zc = zenoh.Config()
     zc.insert_json5("mode", json.dumps(cfg.mode))
     zc.insert_json5("scouting/multicast/enabled", json.dumps(cfg.multicast_scouting))
@@ -66,6 +125,22 @@ def open_session(cfg: BusConfig) -> zenoh.Session:
         zc.insert_json5("listen/endpoints", json.dumps(list(cfg.listen)))
     if cfg.connect:
         zc.insert_json5("connect/endpoints", json.dumps(list(cfg.connect)))
+    if cfg.tls is not None:
+        cfg.tls.check_files()
+        tls = {
+            "root_ca_certificate": cfg.tls.ca,
+            "connect_certificate": cfg.tls.cert,
+            "connect_private_key": cfg.tls.key,
+            "enable_mtls": True,
+            "verify_name_on_connect": True,
+        }
+        zc.insert_json5("transport/link/tls", json.dumps(tls))
+    return zc
+
+
+def open_session(cfg: BusConfig) -> zenoh.Session:
+    """Open a Zenoh session configured by ``cfg``."""
+    zc = zenoh_config(cfg)
     try:
         return zenoh.open(zc)
     except zenoh.ZError as exc:

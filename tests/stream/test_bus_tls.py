@@ -1,0 +1,179 @@
+"""The secure bus on loopback: the shipped router config (deploy/zenohd.json5: mutual TLS,
+access control) with certificates from ``robocal certs``; real Zenoh sessions per role."""
+
+import json
+import os
+import stat
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from kinematics.errors import ConfigError
+from stream.bus import BusConfig, TlsConfig, free_port, open_session
+from stream.router import open_router, router_config
+from stream.security import ROLES, make_line_certs, parse_roles
+
+pytestmark = pytest.mark.integration
+ROUTER_CONFIG = Path(__file__).resolve().parents[2] / "deploy" / "zenohd.json5"
+SETTLE_S = 0.5  # declarations reach the router; a dropped message would have arrived by then
+
+
+@pytest.fixture(scope="module")
+def line(tmp_path_factory):
+    """A router from the shipped config and a function that opens a session of a role."""
+    certs = tmp_path_factory.mktemp("certs")
+    make_line_certs(certs, (*ROLES, "compensation-plc2"))
+    port = free_port()
+    router = open_router(router_config(ROUTER_CONFIG, (f"tls/127.0.0.1:{port}",), certs))
+    opened = []
+
+    def session(role: str) -> zenoh.Session:
+        tls = TlsConfig(
+            ca=str(certs / "ca.pem"),
+            cert=str(certs / f"{role}.pem"),
+            key=str(certs / f"{role}.key"),
+        )
+        s = open_session(BusConfig.loopback(port, listen=False, tls=tls))
+        opened.append(s)
+        return s
+
+    yield session, port, certs
+    for s in opened:
+        s.close()
+    router.close()
+
+
+def _client_config(port: int, tls: dict) -> zenoh.Config:
+    zc = zenoh.Config()
+    zc.insert_json5("mode", '"client"')
+    zc.insert_json5("scouting/multicast/enabled", "false")
+    zc.insert_json5("connect/endpoints", json.dumps([f"tls/127.0.0.1:{port}"]))
+    zc.insert_json5("transport/link/tls", json.dumps(tls))
+    return zc
+
+
+def _received(
+    sub_session: zenoh.Session, key: str, publishers: dict[str, zenoh.Session], last: str
+):
+    """What a subscriber on ``key`` receives when each role puts its name there, ``last`` last."""
+    got: list[str] = []
+    sub = sub_session.declare_subscriber(key, lambda s: got.append(s.payload.to_string()))
+    time.sleep(SETTLE_S)
+    for role, s in publishers.items():
+        if role != last:
+            s.put(key, role)
+    publishers[last].put(key, last)
+    deadline = time.monotonic() + 10
+    while last not in got and time.monotonic() < deadline:
+        time.sleep(0.02)
+    time.sleep(SETTLE_S)
+    sub.undeclare()
+    return got
+
+
+def test_a_session_without_a_certificate_or_with_a_foreign_one_cannot_connect(line, tmp_path):
+    _, port, certs = line
+    with pytest.raises(zenoh.ZError):  # trusts the router, shows no certificate
+        zenoh.open(_client_config(port, {"root_ca_certificate": str(certs / "ca.pem")}))
+    rogue = make_line_certs(tmp_path / "rogue", ("tracker",))  # same role name, another CA
+    forged = {
+        "root_ca_certificate": str(certs / "ca.pem"),
+        "connect_certificate": str(rogue.roles["tracker"][0]),
+        "connect_private_key": str(rogue.roles["tracker"][1]),
+        "enable_mtls": True,
+    }
+    with pytest.raises(zenoh.ZError):
+        zenoh.open(_client_config(port, forged))
+    plain = zenoh.Config()  # plain TCP to the TLS port
+    plain.insert_json5("mode", '"client"')
+    plain.insert_json5("scouting/multicast/enabled", "false")
+    plain.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    with pytest.raises(zenoh.ZError):
+        zenoh.open(plain)
+
+
+def test_only_the_tracker_role_injects_tracker_samples(line):
+    session, _, _ = line
+    roles = ("robot", "daq", "learner", "dashboard", "compensation", "tracker")
+    publishers = {r: session(r) for r in roles}
+    got = _received(session("dashboard"), "robocal/c1/r1/tracker", publishers, "tracker")
+    assert got == ["tracker"]
+
+
+def test_only_the_learner_publishes_models(line):
+    session, _, _ = line
+    roles = ("robot", "tracker", "daq", "dashboard", "compensation", "learner")
+    publishers = {r: session(r) for r in roles}
+    got = _received(session("dashboard"), "robocal/c1/r1/model", publishers, "learner")
+    assert got == ["learner"]
+
+
+def test_only_listed_clients_query_compensate(line):
+    session, _, _ = line
+    server = session("learner")
+    queryable = server.declare_queryable(
+        "robocal/c1/r1/compensate", lambda q: q.reply("robocal/c1/r1/compensate", b"answer")
+    )
+    time.sleep(SETTLE_S)
+
+    def answers(role: str) -> list[bytes]:
+        replies = session(role).get("robocal/c1/r1/compensate", timeout=2.0)
+        return [r.ok.payload.to_bytes() for r in replies if r.ok is not None]
+
+    assert answers("compensation") == [b"answer"]
+    for role in ("robot", "tracker", "dashboard", "compensation-plc2"):  # plc2: not in the list
+        assert answers(role) == [], role
+    queryable.undeclare()
+
+
+def test_certs_are_signed_by_one_ca_with_owner_only_keys(tmp_path):
+    from cryptography import x509
+
+    certs = make_line_certs(tmp_path, ("learner", "router"), hosts=("10.1.2.3",))
+    ca = x509.load_pem_x509_certificate(certs.ca.read_bytes())
+    for role, (cert, key) in certs.roles.items():
+        c = x509.load_pem_x509_certificate(cert.read_bytes())
+        c.verify_directly_issued_by(ca)
+        assert c.subject.rfc4514_string() == f"CN={role}"
+        assert stat.S_IMODE(os.stat(key).st_mode) == 0o600
+    assert stat.S_IMODE(os.stat(certs.ca_key).st_mode) == 0o600
+    router = x509.load_pem_x509_certificate(certs.roles["router"][0].read_bytes())
+    san = router.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    assert {str(ip) for ip in san.get_values_for_type(x509.IPAddress)} == {"127.0.0.1", "10.1.2.3"}
+    with pytest.raises(ConfigError, match="never overwritten"):
+        make_line_certs(tmp_path, ("learner",))
+    again = make_line_certs(tmp_path, ("daq",))  # the CA is reused
+    assert again.ca.read_bytes() == certs.ca.read_bytes()
+
+
+@pytest.mark.parametrize("text", ["", "learner,learner", "admin", "Learner", "tracker-"])
+def test_bad_role_lists_are_refused(text):
+    with pytest.raises(ConfigError):
+        parse_roles(text)
+
+
+TLS = {"ca": "a", "cert": "b", "key": "c"}
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"mode": "client", "connect": ("tcp/127.0.0.1:7447",), "tls": TLS}, "tls/"),
+        ({"connect": ("tls/127.0.0.1:7447",)}, "tls/"),
+        ({"mode": "client", "tls": {"ca": "a", "cert": "b"}}, "needs ca, cert and key"),
+        ({"connect": ("tls/127.0.0.1:7447",), "tls": TLS}, "mode = 'client'"),  # a peer
+        ({"mode": "client", "listen": ("tls/127.0.0.1:1",), "tls": TLS}, "no listen"),
+        ({"zenoh_config": "z.json5", "mode": "client"}, "leave the other bus keys"),
+    ],
+)
+def test_bus_tls_config_is_checked(kwargs, match):
+    with pytest.raises(ConfigError, match=match):
+        BusConfig(**kwargs)
+
+
+def test_unreadable_certificate_is_one_clear_error(tmp_path):
+    tls = TlsConfig(ca=str(tmp_path / "ca.pem"), cert="x.pem", key="x.key")
+    with pytest.raises(ConfigError, match=r"bus\.tls\.ca: cannot read"):
+        open_session(BusConfig.loopback(free_port(), listen=False, tls=tls))
