@@ -8,13 +8,25 @@ J2/J3 coupling); the damping ``d`` grows when a step does not help, which keeps 
 small near singular poses.
 An answer is marked untrusted when the epistemic standard deviation of a position component
 exceeds ``epistemic_limit_mm``: the model has not seen data like this.
+
+Near a singular pose the damped steps cannot reach the target within ``max_iterations``: a
+millimetre there takes a large joint motion. What happens then is the configured ``policy``
+(:data:`POLICIES`, applied by :mod:`stream.compensation_guard`): ``refuse`` answers the
+uncorrected command, ``flag`` answers the partial correction the solver reached, both
+``trusted: false``; ``best_effort`` (:func:`best_effort`) solves again with the position first
+(the orientation rows weighed by ``best_effort_rotation_weight``, m per rad) and joint motions
+up to ``joint_motion_limit_rad`` from the command: trusted when the position lands, with the
+orientation it gave up in ``residual_rad``; flagged when it does not land. On the simulated
+reference cell the commands that do not land sit at the stretched elbow (J2/J3 boundary
+singularity), where the nominal position and orientation together are out of the predicted
+arm's reach but the position alone is not (BENCHMARKS.md).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
 from typing import ClassVar
 
 import numpy as np
@@ -25,11 +37,16 @@ from kinematics.transforms import apply_error, pose_error, transform_from_xyz_qu
 from learner.model import ErrorModel
 from stream.messages import JOINT_LIMIT_RAD, RejectedMessageError, check_finite
 
+#: What compensation does with a command the solver cannot land (see the module doc).
+POLICIES = ("refuse", "flag", "best_effort")
+
 
 @dataclass(frozen=True, kw_only=True)
 class CompensationConfig:
-    """Trust limit (mm), interval level, and the corrected-command iteration: limits, the
-    initial damping ``d`` and the largest joint step per iteration (rad)."""
+    """Trust limit (mm), interval level, the corrected-command iteration (limits, the initial
+    damping ``d``, the largest joint step per iteration, rad) and the policy for commands it
+    cannot land: :data:`POLICIES`, with best effort's largest joint motion from the command
+    (rad, any joint), its iterations and its step (rad)."""
 
     epistemic_limit_mm: float = 0.5
     level: float = 0.9
@@ -37,8 +54,32 @@ class CompensationConfig:
     tolerance_m: float = 1e-7
     damping: float = 1e-6
     max_step_rad: float = 0.01
+    policy: str = "flag"
+    joint_motion_limit_rad: float = 0.5
+    best_effort_iterations: int = 400
+    best_effort_step_rad: float = 0.05
+    best_effort_rotation_weight: float = 0.01
 
     def __post_init__(self) -> None:
+        if self.policy not in POLICIES:
+            raise ConfigError(
+                f"compensation.policy must be one of {', '.join(POLICIES)}, got {self.policy!r}"
+            )
+        if not (math.isfinite(self.joint_motion_limit_rad) and self.joint_motion_limit_rad > 0):
+            raise ConfigError(
+                "compensation.joint_motion_limit_rad must be > 0, got "
+                f"{self.joint_motion_limit_rad}"
+            )
+        if not 0 <= self.best_effort_rotation_weight <= 1:
+            raise ConfigError(
+                "compensation.best_effort_rotation_weight must be in [0, 1] m/rad, got "
+                f"{self.best_effort_rotation_weight}"
+            )
+        if self.best_effort_iterations < 1 or not self.best_effort_step_rad > 0:
+            raise ConfigError(
+                "compensation.best_effort_iterations must be >= 1 and best_effort_step_rad > 0, "
+                f"got {self.best_effort_iterations}, {self.best_effort_step_rad}"
+            )
         if not (math.isfinite(self.epistemic_limit_mm) and self.epistemic_limit_mm > 0):
             raise ConfigError(
                 f"compensation.epistemic_limit_mm must be > 0, got {self.epistemic_limit_mm}"
@@ -86,7 +127,10 @@ class CompensationRequest:
 @dataclass(frozen=True, kw_only=True)
 class CompensationReply:
     """Predicted error at the command (m, rad), its interval and variances, the corrected
-    command (rad), the iteration count and remaining residual (m), and trust."""
+    command (rad), the iteration count and remaining residual (m) of that command, trust, the
+    policy that decided the answer (``none`` when the solver landed, else one of
+    :data:`POLICIES`), the largest joint motion of the answer from the command (rad) and the
+    orientation residual of the answer (rad)."""
 
     SCHEMA: ClassVar[str] = "robocal.compensate.reply"
     model_version: int
@@ -101,6 +145,9 @@ class CompensationReply:
     residual_m: float
     trusted: bool
     reason: str = ""
+    policy: str = "none"
+    joint_motion_rad: float = 0.0
+    residual_rad: float = 0.0
 
     def check(self) -> None:
         return None
@@ -156,31 +203,9 @@ def compensate(
     """Predict the error at ``req.q`` and the command that lands on the target (pure)."""
     q0 = np.asarray(req.q, dtype=float)
     defl = None if req.deflection is None else np.asarray(req.deflection, dtype=float)
-    if req.target_xyz is None:
-        target = robot.fk(q0[None])[0]
-    else:
-        target = transform_from_xyz_quat(np.asarray(req.target_xyz), np.asarray(req.target_quat))[0]
-
-    def residual_at(q: np.ndarray) -> np.ndarray:
-        e = model.predict(features_at(model.feature_names, q, defl, req.temperatures)).mean
-        return pose_error(target[None], apply_error(robot.fk(q[None]), e))[0]
-
     pred0 = model.predict(features_at(model.feature_names, q0, defl, req.temperatures))
-    q, r = q0.copy(), residual_at(q0)
-    damping, iterations = cfg.damping, 0
-    for iterations in range(1, cfg.max_iterations + 1):  # noqa: B007
-        if np.linalg.norm(r[:3]) < cfg.tolerance_m and np.linalg.norm(r[3:]) < cfg.tolerance_m:
-            break
-        J = controller_jacobian(robot, q)
-        for _ in range(8):  # Levenberg-Marquardt: raise the damping until the step helps
-            q_try = q + damped_step(J, r, damping, cfg.max_step_rad)
-            r_try = residual_at(q_try)
-            if np.linalg.norm(r_try) < np.linalg.norm(r):
-                q, r, damping = q_try, r_try, max(damping / 10.0, 1e-12)
-                break
-            damping *= 10.0
-        else:
-            break  # no step reduces the residual: the best reachable command
+    residual_at = residual_function(model, robot, req)
+    q, r, iterations = solve(residual_at, robot, q0, cfg, cfg.max_iterations, cfg.max_step_rad)
     residual = float(np.linalg.norm(r[:3]))
     lo, hi = pred0.interval(cfg.level)
     epistemic = pred0.epistemic()[0]
@@ -201,4 +226,105 @@ def compensate(
         reason=""
         if trusted
         else f"epistemic std {worst_mm:.3f} mm > limit {cfg.epistemic_limit_mm} mm",
+        joint_motion_rad=float(np.abs(q - q0).max()),
+        residual_rad=float(np.linalg.norm(r[3:])),
+    )
+
+
+def _target(robot: RobotModel, req: CompensationRequest) -> np.ndarray:
+    """The pose (4, 4) the request asks to land on: its target, else the command's nominal."""
+    if req.target_xyz is None:
+        return robot.fk(np.asarray(req.q, dtype=float)[None])[0]
+    return transform_from_xyz_quat(np.asarray(req.target_xyz), np.asarray(req.target_quat))[0]
+
+
+def residual_function(
+    model: ErrorModel, robot: RobotModel, req: CompensationRequest
+) -> Callable[[np.ndarray], np.ndarray]:
+    """``q -> pose_error(target, predicted pose at q)`` (6,) m, rad, for the request's target
+    and features."""
+    target = _target(robot, req)
+    defl = None if req.deflection is None else np.asarray(req.deflection, dtype=float)
+
+    def residual_at(q: np.ndarray) -> np.ndarray:
+        e = model.predict(features_at(model.feature_names, q, defl, req.temperatures)).mean
+        return pose_error(target[None], apply_error(robot.fk(q[None]), e))[0]
+
+    return residual_at
+
+
+def solve(
+    residual_at: Callable[[np.ndarray], np.ndarray],
+    robot: RobotModel,
+    q_start: np.ndarray,
+    cfg: CompensationConfig,
+    max_iterations: int,
+    max_step: float,
+    box: tuple[np.ndarray, np.ndarray] | None = None,
+    rotation_weight: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Levenberg-Marquardt from ``q_start`` (rad): the command, its residual (6,) and the
+    iterations used; ``box`` (low, high rad) bounds every iterate (best effort's motion limit);
+    ``rotation_weight`` weighs the orientation rows against the position rows (m per rad)."""
+    w = np.array([1.0, 1.0, 1.0, *[rotation_weight] * 3])
+    q = np.asarray(q_start, dtype=float).copy()
+    r = residual_at(q)
+    damping, iterations = cfg.damping, 0
+    for iterations in range(1, max_iterations + 1):  # noqa: B007
+        if np.linalg.norm(r[:3]) < cfg.tolerance_m and np.linalg.norm(w[3:] * r[3:]) < (
+            cfg.tolerance_m
+        ):
+            break
+        J = w[:, None] * controller_jacobian(robot, q)
+        for _ in range(8):  # Levenberg-Marquardt: raise the damping until the step helps
+            q_try = q + damped_step(J, w * r, damping, max_step)
+            if box is not None:
+                q_try = np.clip(q_try, *box)
+            r_try = residual_at(q_try)
+            if np.linalg.norm(w * r_try) < np.linalg.norm(w * r):
+                q, r, damping = q_try, r_try, max(damping / 10.0, 1e-12)
+                break
+            damping *= 10.0
+        else:
+            break  # no step reduces the residual: the best reachable command
+    return q, r, iterations
+
+
+def best_effort(
+    model: ErrorModel,
+    robot: RobotModel,
+    req: CompensationRequest,
+    cfg: CompensationConfig,
+    reply: CompensationReply,
+) -> CompensationReply:
+    """``reply`` solved again from the command or its partial correction, position first
+    (orientation rows weighed by ``best_effort_rotation_weight``), with larger steps
+    (``best_effort_step_rad``, ``best_effort_iterations``) inside the joint limits and within
+    ``joint_motion_limit_rad`` of the command on every joint; residuals and motion updated."""
+    q0 = np.asarray(req.q, dtype=float)
+    limits = robot.description.limits_rad
+    low = np.maximum(q0 - cfg.joint_motion_limit_rad, limits[:, 0])
+    high = np.minimum(q0 + cfg.joint_motion_limit_rad, limits[:, 1])
+    residual_at = residual_function(model, robot, req)
+    w = np.array([1.0, 1.0, 1.0, *[cfg.best_effort_rotation_weight] * 3])
+    # start from the command or the partial correction, whichever is closer once in the box
+    starts = (q0, np.clip(np.asarray(reply.q_corrected, dtype=float), low, high))
+    start = min(starts, key=lambda q: float(np.linalg.norm(w * residual_at(q))))
+    q, r, iterations = solve(
+        residual_at,
+        robot,
+        start,
+        cfg,
+        cfg.best_effort_iterations,
+        cfg.best_effort_step_rad,
+        (low, high),
+        cfg.best_effort_rotation_weight,
+    )
+    return replace(
+        reply,
+        q_corrected=tuple(q.tolist()),
+        iterations=reply.iterations + iterations,
+        residual_m=float(np.linalg.norm(r[:3])),
+        joint_motion_rad=float(np.abs(q - q0).max()),
+        residual_rad=float(np.linalg.norm(r[3:])),
     )

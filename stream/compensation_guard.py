@@ -9,6 +9,13 @@ more than ``max_residual_m``), ``corrected_limits`` (the corrected command leave
 ``epistemic`` (the model has not seen data like this). A refusal before solving answers with
 the uncorrected command and the error predicted there (zeros when even that fails).
 
+A command the solver cannot land within ``max_residual_m`` (near a singular pose) is answered
+by the configured policy (``CompensationConfig.policy``; the reply's ``policy`` names it and its
+reason gives the solver residual in mm): ``refuse`` answers the uncorrected command,
+``flag`` the partial correction, both ``residual: ...``; ``best_effort`` solves again, position
+first, within the joint-motion limit and is trusted when the position lands (the orientation
+it gave up is the reply's ``residual_rad``), else ``residual: ...`` with the command it reached.
+
 >>> GuardConfig().max_residual_m
 0.0001
 """
@@ -27,8 +34,10 @@ from stream.compensation import (
     CompensationConfig,
     CompensationReply,
     CompensationRequest,
+    best_effort,
     compensate,
     features_at,
+    residual_function,
 )
 
 QUATERNION_TOLERANCE = 1e-3
@@ -106,17 +115,62 @@ def guarded_compensate(
     if not all(math.isfinite(v) for v in numbers):
         return replace(reply, trusted=False, reason="solver: non-finite result")
     if reply.residual_m > guard.max_residual_m:
-        return replace(
-            reply,
-            trusted=False,
-            reason=f"residual: {reply.residual_m * 1e3:.3f} mm > "
-            f"{guard.max_residual_m * 1e3:.3f} mm",
-        )
+        reply = apply_policy(model, robot, req, cfg, reply, guard)
+        if reply.policy != "best_effort" or reply.residual_m > guard.max_residual_m:
+            return reply
     if why := outside_limits(robot, np.asarray(reply.q_corrected), guard.limit_slack_rad):
         return replace(reply, trusted=False, reason=f"corrected_limits: {why}")
     if not reply.trusted:
         return replace(reply, reason=f"epistemic: {reply.reason}")
     return reply
+
+
+def apply_policy(
+    model: ErrorModel,
+    robot: RobotModel,
+    req: CompensationRequest,
+    cfg: CompensationConfig,
+    reply: CompensationReply,
+    guard: GuardConfig,
+) -> CompensationReply:
+    """The answer to a command the solver left ``reply.residual_m`` short of its target, by
+    ``cfg.policy`` (module doc); trusted only when best effort lands within
+    ``guard.max_residual_m`` (and the model was trusted there)."""
+    limit_mm, solver_mm = guard.max_residual_m * 1e3, reply.residual_m * 1e3
+    if cfg.policy == "refuse":
+        out = _refused(
+            model,
+            robot,
+            req,
+            cfg,
+            reply.model_version,
+            f"residual: solver {solver_mm:.3f} mm > {limit_mm:.3f} mm, policy refuse: "
+            "uncorrected command",
+        )
+        miss = residual_function(model, robot, req)(np.asarray(req.q, dtype=float))
+        return replace(
+            out,
+            policy="refuse",
+            residual_m=float(np.linalg.norm(miss[:3])),
+            residual_rad=float(np.linalg.norm(miss[3:])),
+        )
+    if cfg.policy == "flag":
+        return replace(
+            reply,
+            trusted=False,
+            policy="flag",
+            reason=f"residual: solver {solver_mm:.3f} mm > {limit_mm:.3f} mm, policy flag: "
+            f"partial correction ({reply.joint_motion_rad:.3f} rad joint motion)",
+        )
+    out = replace(best_effort(model, robot, req, cfg, reply), policy="best_effort")
+    if out.residual_m <= guard.max_residual_m:
+        return out
+    return replace(
+        out,
+        trusted=False,
+        reason=f"residual: {out.residual_m * 1e3:.3f} mm > {limit_mm:.3f} mm after best effort "
+        f"within {cfg.joint_motion_limit_rad:g} rad (solver {solver_mm:.3f} mm before)",
+    )
 
 
 def _refused(

@@ -5,7 +5,10 @@ Request payload: JSON of :class:`~stream.compensation.CompensationRequest` (``sc
 :class:`~stream.compensation.CompensationReply`, or a Zenoh error reply with one line that
 starts with its reason (bad request, no model yet). Answers go through
 :func:`~stream.compensation_guard.guarded_compensate`: what it cannot stand behind is
-``trusted: false`` with a coded reason. The service follows ``.../model`` and, on start, asks
+``trusted: false`` with a coded reason, and a command the solver cannot land (near a singular
+pose) is answered by the configured ``[compensation] policy`` (``refuse``, ``flag`` or
+``best_effort`` within ``joint_motion_limit_rad``), named in the reply's ``policy``. The
+service follows ``.../model`` and, on start, asks
 the ``.../model`` queryable for the latest snapshot; a snapshot is adopted only when
 :class:`~stream.trust.ModelGate` says it belongs to this cell (a refusal is counted, logged
 once per kind and shown on ``diagnostics``; the last good model stays). Every answer is also
