@@ -88,16 +88,22 @@ def demo_config(out: Path, cell: str, robot: str, T_W_0: np.ndarray, port: int) 
 
 
 def compensation_check(
-    session: zenoh.Session, cell: str, ds: Dataset, seed: int, rows: np.ndarray
+    session: zenoh.Session,
+    cell: str,
+    ds: Dataset,
+    seed: int,
+    rows: np.ndarray,
+    policy: str = "flag",
 ) -> dict:
     """Ask the compensation service for the corrected commands of held-out poses ``rows`` and
     score them on the simulator's true robot: position error (mm) before and after, and after
     for the commands whose solver reached the target (within ``REACHED_M``); near a singular
-    pose the rest keep the residual the service reports."""
+    pose the rest are answered by the service's ``policy`` (how many, how many untrusted, the
+    largest residual left, mm)."""
     sim = SimulatedCell(get_scenario("paper"), len(ds), seed)
     cond = sim.conditions(rows)
     target = RobotModel(sim.model.description).fk(cond.q)
-    q_corrected, residual, trusted = [], [], 0
+    q_corrected, residual, trusted, policies = [], [], 0, []
     for i in rows:
         temps = {c[5:]: float(ds.table[c].iloc[i]) for c in ds.table if c.startswith("temp_")}
         req = CompensationRequest(
@@ -110,6 +116,8 @@ def compensation_check(
         q_corrected.append(reply.q_corrected)
         residual.append(reply.residual_m)
         trusted += reply.trusted
+        if reply.policy != "none":  # the solver could not land it: the configured policy
+            policies.append((reply.trusted, reply.residual_m))
     before = np.linalg.norm(pose_error(sim.truth.poses(cond), target)[:, :3], axis=1)
     cond_after = replace(cond, q=np.array(q_corrected))
     after = np.linalg.norm(pose_error(sim.truth.poses(cond_after), target)[:, :3], axis=1)
@@ -122,6 +130,12 @@ def compensation_check(
         "reached_after_mean_mm": float(after[reached].mean() * 1e3) if reached.any() else None,
         "max_residual_mm": float(max(residual) * 1e3),
         "trusted_fraction": trusted / len(rows),
+        "policy": {
+            "name": policy,
+            "applied": len(policies),
+            "untrusted": sum(not t for t, _ in policies),
+            "max_residual_mm": max((r * 1e3 for _, r in policies), default=0.0),
+        },
     }
 
 
@@ -187,7 +201,9 @@ def run_demo(
         core = daemon.learners[robot].core
         report = accuracy_report(model, core.test_x, core.test_y)
         rows = np.arange(9, n, 10)[:50]
-        compensation = compensation_check(source_session, cell, ds, seed, rows)
+        compensation = compensation_check(
+            source_session, cell, ds, seed, rows, cfg.compensation.policy
+        )
         dropped = dict(daemon.windows[robot].counter.dropped)
     finally:
         source_session.close()

@@ -97,6 +97,7 @@ class DemoCommand(Command):
             )
         learned, comp = result.learned, result.compensation
         reached = comp["reached_after_mean_mm"]
+        pol = comp["policy"]
         reached_mm = "none" if reached is None else f"{reached:.3f} mm"
         text = (
             f"{result.n_points} points streamed ({result.samples_published} samples), "
@@ -110,6 +111,9 @@ class DemoCommand(Command):
             f"{comp['before_mean_mm']:.3f} mm -> {comp['after_mean_mm']:.3f} mm mean error\n"
             f"                {comp['reached']} of them reach the target ({reached_mm}); the "
             f"largest solver residual left is {comp['max_residual_mm']:.3f} mm\n"
+            f"                policy {pol['name']} ([compensation] policy) on the "
+            f"{pol['applied']} the solver could not land: {pol['untrusted']} untrusted, largest "
+            f"residual {pol['max_residual_mm']:.3f} mm\n"
             f"  wrote {result.rrd} and {result.mcap} in {result.elapsed_s:.1f} s"
         )
         emit(asdict(result), args.json, text)
