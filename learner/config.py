@@ -13,7 +13,8 @@ kinematics.errors.ConfigError: continual.strategy must be one of (...), got 'lru
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 
 from kinematics.errors import ConfigError
 
@@ -111,6 +112,57 @@ class TrainConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
+class QuarantineConfig:
+    """Defence against poisoned measurements (:mod:`learner.quarantine`). A new point is
+    quarantined — never trained on, held out or kept in memory — when its residual against the
+    published model lies more than ``interval_threshold`` predictive (Student-t) scales from the
+    prediction in some component AND more than ``threshold`` robust units (normal-scaled MADs,
+    norm over the six components) from its neighbours' residuals (the ``history`` latest
+    accepted points and its own batch). Before the first model the labels are compared with
+    each other against ``warmup_threshold``. ``release_after`` consecutive quarantined points
+    are taken as a lasting change of the cell, not a fault: the quarantine lets the shift
+    through and follows it. An update whose published model's held-out position error exceeds
+    the last published one's by more than ``publish_tolerance`` (relative) is withheld
+    (``inf`` turns the gate off); the gate waits for ``gate_min_points`` held-out points.
+    ``enabled`` false turns the quarantine off (the gate stays). Thresholds from the clean and
+    poisoned streams of BENCHMARKS.md, "No poisoning"."""
+
+    enabled: bool = True
+    threshold: float = 25.0
+    interval_threshold: float = 4.0
+    warmup_threshold: float = 100.0
+    history: int = 500
+    release_after: int = 100
+    publish_tolerance: float = 0.1
+    gate_min_points: int = 20
+
+    def __post_init__(self) -> None:
+        _check(
+            isinstance(self.enabled, bool),
+            f"quarantine.enabled must be a bool, got {self.enabled!r}",
+        )
+        for key in ("threshold", "interval_threshold", "warmup_threshold"):
+            value = getattr(self, key)
+            _check(
+                isinstance(value, int | float) and value > 0,
+                f"quarantine.{key} must be > 0, got {value!r}",
+            )
+        for key in ("history", "release_after", "gate_min_points"):
+            value = getattr(self, key)
+            _check(
+                isinstance(value, int) and value >= 1,
+                f"quarantine.{key} must be an int >= 1, got {value!r}",
+            )
+        _check(
+            isinstance(self.publish_tolerance, int | float)
+            and not math.isnan(self.publish_tolerance)
+            and self.publish_tolerance >= 0,
+            "quarantine.publish_tolerance must be >= 0 (inf: no gate), "
+            f"got {self.publish_tolerance!r}",
+        )
+
+
+@dataclass(frozen=True, kw_only=True)
 class ContinualConfig:
     """Continual learning: memory ``N_m``, batch ``n_B``, ``init`` points for the first model,
     the replay ``strategy``, the epochs and learning rate of the warm-started training after
@@ -125,7 +177,9 @@ class ContinualConfig:
     first model is identified on from the ``init`` points (:mod:`learner.base`; a model that
     has one keeps it); ``auto`` takes the nominal when they are too few to identify it.
     ``aci_rate`` is the step of the adaptive conformal interval scale per new point outside
-    (or inside) the ``aci_level`` interval, in log units (0 turns it off)."""
+    (or inside) the ``aci_level`` interval, in log units (0 turns it off). ``quarantine``
+    keeps poisoned points out and withholds updates that worsen the held-out error (a table
+    ``[learner.continual.quarantine]`` in TOML)."""
 
     memory: int = 500
     batch: int = 100
@@ -141,8 +195,18 @@ class ContinualConfig:
     aci_rate: float = 0.05
     aci_level: float = 0.9
     seed: int = 0
+    quarantine: QuarantineConfig = field(default_factory=QuarantineConfig)
 
     def __post_init__(self) -> None:
+        if isinstance(self.quarantine, dict):  # a TOML table
+            try:
+                object.__setattr__(self, "quarantine", QuarantineConfig(**self.quarantine))
+            except TypeError as exc:
+                raise ConfigError(f"continual.quarantine: {exc}") from None
+        _check(
+            isinstance(self.quarantine, QuarantineConfig),
+            f"continual.quarantine must be a table, got {type(self.quarantine).__name__}",
+        )
         counts = ("memory", "batch", "init", "epochs_per_update", "init_epochs", "calibration_size")
         for key in counts:
             value = getattr(self, key)

@@ -12,6 +12,12 @@ between 73 % and 95 % from one update to the next; see BENCHMARKS.md.) The same 
 which epoch's weights an update keeps, as in batch training. Until ``init`` points have
 arrived, updates only collect points; then the first model is trained on them.
 
+Poisoned measurements are kept out (:mod:`learner.quarantine`): every new point is screened
+against the published model and its neighbours before anything else sees it, and a quarantined
+point is neither trained on, held out nor kept in memory. An update whose published model is
+worse on the held-out set than the last published one by more than
+``quarantine.publish_tolerance`` is withheld: the last good model stays published.
+
 The model the learner publishes (:attr:`ContinualLearner.model`) is not the trained one
 (:attr:`ContinualLearner.trained`) but an exponential moving average of its weights over
 updates, the latest update's share ``average``. Each update fits its weights to the
@@ -22,38 +28,33 @@ Ranking and training use the trained weights.
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import torch
-from safetensors import SafetensorError
-from safetensors.numpy import load as np_load
-from safetensors.numpy import save as np_save
 
 from kinematics.errors import DatasetError, SnapshotError
 from kinematics.model import RobotModel
 from learner.base import PhysicsBase, identify_base, nominal_base
 from learner.config import ContinualConfig
+from learner.continual_state import STATE_SCHEMA, state_from_bytes, state_to_bytes  # noqa: F401
 from learner.model import MIN_CALIBRATION, ErrorModel, TrainReport
+from learner.quarantine import QuarantineState, holdout_mm, model_residuals, screen, withhold
+from learner.quarantine import state_from_dict as quarantine_from_dict
 from learner.replay import replay_strategy
-from learner.snapshot import (
-    load_snapshot,
-    read_metadata,
-    snapshot_from_bytes,
-    snapshot_to_bytes,
-)
-
-STATE_SCHEMA = "robocal.continual"
+from learner.snapshot import load_snapshot, snapshot_from_bytes, snapshot_to_bytes
 
 
 @dataclass(frozen=True, kw_only=True)
 class UpdateMetrics:
     """What one update did. Errors are position-error norms in mm: ``batch_*`` of the new
-    points before training (prequential), ``train_*`` of the memory after training."""
+    points before training (prequential), ``train_*`` of the memory after training,
+    ``holdout_mm`` of the published model on the held-out set (NaN without one).
+    ``quarantined`` counts this step's points kept out; ``withheld`` says the gate kept the
+    last published model."""
 
     version: int
     n_seen: int
@@ -66,6 +67,9 @@ class UpdateMetrics:
     batch_max_mm: float
     train_mean_mm: float
     skipped_steps: int
+    quarantined: int = 0
+    withheld: bool = False
+    holdout_mm: float = float("nan")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -100,6 +104,8 @@ class ContinualLearner:
         self._cal_y = np.empty((0, 6))
         self.n_seen = 0
         self.version = 0
+        self.quarantine = QuarantineState.empty()
+        self.n_withheld = 0
         if model.is_fitted:  # a trained model (a snapshot) goes on learning with an empty memory
             self.trained = _copy(model)
             self.version = 1
@@ -113,18 +119,30 @@ class ContinualLearner:
     def memory(self) -> Memory:
         return Memory(self._mem_x.copy(), self._mem_y.copy())
 
-    def initialize(self, X: np.ndarray, Y: np.ndarray) -> UpdateMetrics:
-        """Train the first model on ``X, Y`` (normally the first ``init`` points)."""
+    def screen(self, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+        """Which new points pass the quarantine (bool per row); counted in :attr:`quarantine`."""
         X, Y = self._check(X, Y)
+        r, z = model_residuals(self.model, X, Y)
+        accepted, self.quarantine = screen(r, z, self.quarantine, self.cfg.quarantine)
+        return accepted
+
+    def initialize(self, X: np.ndarray, Y: np.ndarray, screened: bool = False) -> UpdateMetrics:
+        """Train the first model on those of ``X, Y`` (normally the first ``init`` points) that
+        pass the quarantine (all when ``screened`` already)."""
+        X, Y = self._check(X, Y)
+        n_in = len(X)
+        ok = np.ones(n_in, dtype=bool) if screened else self.screen(X, Y)
+        X, Y = X[ok], Y[ok]
         self._mem_x, self._mem_y = X[-self.cfg.memory :], Y[-self.cfg.memory :]
-        self.n_seen = len(X)
+        self.n_seen = n_in
         start = time.perf_counter()
         if self.trained.base is None and self.trained.spec.description is not None:
             self.trained.base = identify_base(self.cfg.base, self.trained.spec, X, Y)
         report = self.trained.fit(X, Y, max_epochs=self.cfg.init_epochs)
         self.model = _copy(self.trained)
         self.version += 1
-        return self._metrics(len(X), len(self._mem_x), report, time.perf_counter() - start)
+        m = self._metrics(len(X), len(self._mem_x), report, time.perf_counter() - start)
+        return replace(m, quarantined=int(n_in - ok.sum()))
 
     def learn_stream(self, X: np.ndarray, Y: np.ndarray) -> Iterator[UpdateMetrics]:
         """Learn ``X, Y`` in their order, as a line delivers them: the first model from the
@@ -136,21 +154,30 @@ class ContinualLearner:
         for i in range(init, len(X), batch):
             yield self.update(X[i : i + batch], Y[i : i + batch])
 
-    def update(self, X_new: np.ndarray, Y_new: np.ndarray) -> UpdateMetrics:
-        """Learn one batch: hold out a share for calibration, select the memory from memory ∪
-        the rest, train on it, recalibrate the intervals on the held-out set."""
+    def update(self, X_new: np.ndarray, Y_new: np.ndarray, screened: bool = False) -> UpdateMetrics:
+        """Learn one batch: keep out what the quarantine refuses (unless ``screened`` already),
+        hold out a share for calibration, select the memory from memory ∪ the rest, train on
+        it, recalibrate the intervals on the held-out set; publish unless the gate withholds."""
         X_new, Y_new = self._check(X_new, Y_new)
-        if self.version == 0:
+        n_in = len(X_new)
+        ok = np.ones(n_in, dtype=bool) if screened else self.screen(X_new, Y_new)
+        X_new, Y_new, out = X_new[ok], Y_new[ok], {"quarantined": int(n_in - ok.sum())}
+        seen = self.n_seen + n_in  # held-out and quarantined points included: every point given
+        if self.version == 0:  # collecting the first points; the first model once there
             pool_x = np.concatenate([self._mem_x, X_new])
             pool_y = np.concatenate([self._mem_y, Y_new])
-            if len(pool_x) < self.cfg.init:
-                self._mem_x, self._mem_y, self.n_seen = pool_x, pool_y, len(pool_x)
-                return self._metrics(len(X_new), 0, None, 0.0)
-            return self.initialize(pool_x, pool_y)
+            if len(pool_x) >= self.cfg.init:
+                m = self.initialize(pool_x, pool_y, screened=True)
+                self.n_seen = seen
+                return replace(m, n_seen=seen, **out)
+            self._mem_x, self._mem_y = pool_x, pool_y
+        if self.version == 0 or not len(X_new):  # nothing to learn yet
+            self.n_seen = seen
+            return replace(self._metrics(n_in, 0, None, 0.0), **out)
         self._adapt_intervals(X_new, Y_new)
-        n_in = len(X_new)
-        held = np.zeros(n_in, dtype=bool)
-        held[self.rng.permutation(n_in)[: int(self.cfg.holdout * n_in)]] = True
+        n_new = len(X_new)
+        held = np.zeros(n_new, dtype=bool)
+        held[self.rng.permutation(n_new)[: int(self.cfg.holdout * n_new)]] = True
         keep_last = self.cfg.calibration_size
         self._cal_x = np.concatenate([self._cal_x, X_new[held]])[-keep_last:]
         self._cal_y = np.concatenate([self._cal_y, Y_new[held]])[-keep_last:]
@@ -164,7 +191,7 @@ class ContinualLearner:
         )
         keep = np.sort(keep)
         self._mem_x, self._mem_y = pool_x[keep], pool_y[keep]
-        self.n_seen += n_in  # held-out points included: every point the learner was given
+        self.n_seen = seen
         # The held-out set also picks the best epoch (and fit calibrates on it).
         val = (self._cal_x, self._cal_y) if len(self._cal_x) >= MIN_CALIBRATION else (None, None)
         start = time.perf_counter()
@@ -176,12 +203,26 @@ class ContinualLearner:
             val_fraction=0.0,
             lr=self.cfg.update_lr,
         )
-        self._publish()
-        self.version += 1
+        withheld, holdout_mm = self._publish_gated()
         new_kept = int(np.sum(keep >= len(pool_x) - len(X_new)))
         batch_err = np.linalg.norm((pred - pool_y)[-len(X_new) :, :3], axis=1)
         dt = time.perf_counter() - start
-        return self._metrics(len(X_new), new_kept, report, dt, batch_err)
+        m = self._metrics(len(X_new), new_kept, report, dt, batch_err)
+        return replace(m, withheld=withheld, holdout_mm=holdout_mm, **out)
+
+    def _publish_gated(self) -> tuple[bool, float]:
+        """Publish the update unless the gate withholds it (the held-out error grew beyond the
+        tolerance): then the last published model stays. Whether it was withheld, and the
+        published model's held-out position error (mm)."""
+        before = holdout_mm(self.model, self._cal_x, self._cal_y)
+        last = _copy(self.model)
+        self._publish()
+        after = holdout_mm(self.model, self._cal_x, self._cal_y)
+        if withhold(before, after, len(self._cal_x), self.cfg.quarantine):
+            self.model, self.n_withheld = last, self.n_withheld + 1
+            return True, before
+        self.version += 1
+        return False, after
 
     def remember(self, X: np.ndarray, Y: np.ndarray) -> None:
         """Fill the memory from points the model was trained on (a batch-trained model that goes
@@ -282,6 +323,8 @@ class ContinualLearner:
             "aci_log_scale": self.aci_log_scale.copy(),
             "n_seen": self.n_seen,
             "version": self.version,
+            "n_withheld": self.n_withheld,
+            **self.quarantine.to_dict(),
             "rng": self.rng.bit_generator.state,
             "model": snapshot_to_bytes(self.model),
             "trained": snapshot_to_bytes(self.trained),
@@ -301,6 +344,7 @@ class ContinualLearner:
             aci = np.asarray(state.get("aci_log_scale", np.zeros(6)), dtype=float)
             n_seen, version = int(state["n_seen"]), int(state["version"])
             rng_state = state["rng"]
+            quarantine, n_withheld = quarantine_from_dict(state), int(state.get("n_withheld", 0))
         except (KeyError, TypeError, ValueError) as exc:
             raise SnapshotError(f"continual state is incomplete: {exc}") from None
         if model.feature_names != self.model.feature_names:
@@ -313,46 +357,13 @@ class ContinualLearner:
         self._cal_x, self._cal_y = cal_x, cal_y
         self.aci_log_scale = aci
         self.n_seen, self.version = n_seen, version
+        self.quarantine, self.n_withheld = quarantine, n_withheld
         self.rng.bit_generator.state = rng_state
 
 
 def _copy(model: ErrorModel) -> ErrorModel:
     """An independent copy of ``model`` (through its snapshot: weights, scalers, base)."""
     return snapshot_from_bytes(snapshot_to_bytes(model))
-
-
-def state_to_bytes(state: dict) -> bytes:
-    """A :meth:`ContinualLearner.state_dict` as safetensors bytes (memory as tensors, the rest
-    as JSON metadata, the model snapshot hex-encoded)."""
-    meta = {
-        "schema": STATE_SCHEMA,
-        "n_seen": state["n_seen"],
-        "version": state["version"],
-        "rng": state["rng"],
-        "model": state["model"].hex(),
-        "trained": state["trained"].hex(),
-    }
-    keys = ("memory_x", "memory_y", "holdout_x", "holdout_y", "aci_log_scale")
-    arrays = {k: np.ascontiguousarray(state[k]) for k in keys if k in state}
-    return np_save(arrays, metadata={"robocal": json.dumps(meta)})
-
-
-def state_from_bytes(data: bytes) -> dict:
-    """Inverse of :func:`state_to_bytes`; a malformed blob raises :class:`SnapshotError`."""
-    try:
-        arrays = np_load(data)
-        meta = read_metadata(data)
-        if meta.get("schema") != STATE_SCHEMA:
-            raise SnapshotError(
-                f"state schema must be {STATE_SCHEMA!r}, got {meta.get('schema')!r}"
-            )
-        return {
-            **arrays,
-            **{k: meta[k] for k in ("n_seen", "version", "rng")},
-            **{k: bytes.fromhex(meta[k]) for k in ("model", "trained") if k in meta},
-        }
-    except (SafetensorError, ValueError, KeyError, TypeError) as exc:
-        raise SnapshotError(f"continual state unreadable: {exc}") from None
 
 
 def state_path(model_path: str | Path) -> Path:

@@ -1,7 +1,9 @@
 """The learner stage's logic without I/O: batches in, model updates and metrics out.
 
-Every ``holdout_every``-th point (by arrival) joins a held-out test set (the newest
-``max_test_points``) that is never trained on; the rest go to
+Every batch is first screened by the learner's quarantine
+(:meth:`learner.continual.ContinualLearner.screen`): a poisoned point is neither tested on nor
+learned. Of the points that pass, every ``holdout_every``-th (by arrival) joins a held-out
+test set (the newest ``max_test_points``) that is never trained on; the rest go to
 :meth:`learner.continual.ContinualLearner.update`. After each update the core reports test
 error (mean/max mm), the prequential batch error, uncertainty on the test set
 (aleatoric/epistemic std, mm) and the memory composition by batch age. A checkpoint (learner
@@ -15,7 +17,7 @@ import json
 import os
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +30,8 @@ from kinematics.errors import ConfigError, RobocalError, SnapshotError
 from kinematics.model import RobotModel
 from learner.base import check_same_robot, reidentify_frames
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
-from learner.continual import ContinualLearner, load_learner, state_from_bytes, state_to_bytes
+from learner.continual import ContinualLearner, UpdateMetrics, load_learner
+from learner.continual_state import state_from_bytes, state_to_bytes
 from learner.features import FeatureSpec, dataset_features, dataset_labels, feature_spec
 from learner.model import ErrorModel
 from learner.snapshot import read_metadata, snapshot_from_bytes, snapshot_to_bytes
@@ -87,6 +90,8 @@ class LearnerCore:
             self._start_from(cfg.start_from)
         self.last_seq = -1
         self.n_points = 0
+        #: What the learner did with the latest batch (None while a batch is refused).
+        self.last_step: UpdateMetrics | None = None
         self._age: dict[bytes, int] = {}
         #: Per window run (epoch): its last batch seq learned and the index of the next point
         #: expected; kept with the checkpoint so a restarted window's batches go on (the stage).
@@ -111,6 +116,7 @@ class LearnerCore:
 
     def add_batch(self, batch: Batch, now: float | None = None) -> Update | None:
         """Learn one batch; the published update, or None while collecting the first points."""
+        self.last_step = None
         if batch.seq <= self.last_seq:
             raise RejectedMessageError("duplicate", f"batch {batch.seq} already learned")
         if not batch.points:
@@ -128,18 +134,21 @@ class LearnerCore:
             )
             self.learner = ContinualLearner(model, self.cfg.continual)
             self.test_x = np.empty((0, X.shape[1]))
+        passed = self.learner.screen(X, Y)
         k = self.n_points + np.arange(len(X))
-        test = (k % self.cfg.holdout_every) == self.cfg.holdout_every - 1
+        test = ((k % self.cfg.holdout_every) == self.cfg.holdout_every - 1) & passed
+        train = ~test & passed
         self.test_x = np.concatenate([self.test_x, X[test]])
         self.test_y = np.concatenate([self.test_y, Y[test]])
-        for row in X[~test]:
+        for row in X[train]:
             self._age[row.tobytes()] = batch.seq
         self.n_points += len(X)
         self.last_seq = batch.seq
         cap = self.cfg.max_test_points
         self.test_x, self.test_y = self.test_x[-cap:], self.test_y[-cap:]
         version = self.learner.version
-        m = self.learner.update(X[~test], Y[~test])
+        m = self.learner.update(X[train], Y[train], screened=True)
+        self.last_step = replace(m, quarantined=int((~passed).sum()))
         if self.learner.version == version:
             return None
         in_memory = {r.tobytes() for r in self.learner.memory.x}
@@ -178,6 +187,8 @@ class LearnerCore:
             epistemic_mm=epi,
             epistemic_p90_mm=epi90,
             memory_age=tuple(int(c) for c in age_counts),
+            quarantined=learner.quarantine.quarantined,
+            withheld=learner.n_withheld,
             t=time.time() if now is None else now,
         )
 

@@ -235,7 +235,8 @@ class ModelHeader:
 
 @dataclass(frozen=True, kw_only=True)
 class Metrics:
-    """One learner update: version, counts, timing and errors (mm), uncertainty (mm)."""
+    """One learner update: version, counts, timing and errors (mm), uncertainty (mm), and the
+    poisoning defence's cumulative counts (``quarantined`` points, ``withheld`` updates)."""
 
     SCHEMA: ClassVar[str] = "robocal.metrics"
     model_version: int
@@ -249,6 +250,8 @@ class Metrics:
     epistemic_mm: float
     epistemic_p90_mm: float
     memory_age: tuple[int, ...] = ()
+    quarantined: int = 0  # points kept out by the quarantine, cumulative
+    withheld: int = 0  # updates the publish gate withheld, cumulative
     t: float = 0.0
 
     def check(self) -> None:

@@ -1,4 +1,5 @@
-"""The learner stage core: hold-out, updates, duplicates, checkpoint -> restart continues."""
+"""The learner stage core: hold-out, updates, duplicates, checkpoint -> restart continues,
+quarantined points neither tested nor learned."""
 
 from dataclasses import replace
 
@@ -106,3 +107,23 @@ def test_a_carried_model_goes_on_and_a_foreign_one_is_refused(batches, tmp_path)
     assert len(day2.learner.memory) == len(day1.learner.memory) == 40
     with pytest.raises(ConfigError, match="is for robot 'fanuc_m900ib700'"):
         LearnerCore(load_description("ur10"), replace(CFG, start_from=str(path)))
+
+
+def test_quarantined_points_are_neither_tested_nor_learned(batches):
+    ds, bs = batches
+    c = core(ds)
+    for b in bs[:3]:
+        c.add_batch(b)
+    before = len(c.test_y)
+    points = list(bs[3].points)
+    bumped = set(range(5, 15))  # the tracker bumped by 50 mm for ten points
+    for i in bumped:
+        x, y, z = points[i].xyz
+        points[i] = replace(points[i], xyz=(x + 0.05, y, z))
+    update = c.add_batch(Batch(seq=3, points=tuple(points)))
+    assert c.last_step.quarantined == 10 and update.metrics.quarantined == 10
+    assert len(c.test_y) == before + 2  # of the 4 test points (every 5th), 2 were bumped
+    X, _ = c.features(Batch(seq=3, points=tuple(points)))
+    kept = {r.tobytes() for r in np.concatenate([c.test_x, c.learner.memory.x])}
+    assert not kept & {X[i].tobytes() for i in bumped}
+    assert c.metrics(0.0, 0.0, 0.0).quarantined == 10
