@@ -167,9 +167,11 @@ class Dashboard:
         """A stage's drop counts by reason and in ``all`` (counts since the stage started)."""
         self._at(time.time() if received_t is None else received_t)
         stage = rr.escape_entity_path_part(d.stage)
-        self.rec.log(f"drops/{stage}/all", rr.Scalars(float(sum(d.dropped.values()))))
-        for reason, n in sorted(d.dropped.items()):
-            self.rec.log(f"drops/{stage}/{rr.escape_entity_path_part(reason)}", rr.Scalars(n))
+        counts = {"all": sum(d.dropped.values()), **d.dropped}
+        for reason, n in counts.items():
+            path = f"drops/{stage}/{rr.escape_entity_path_part(reason)}"
+            self._style(path, names=[f"{d.stage}: {reason}"])
+            self.rec.log(path, rr.Scalars(float(n)))
 
     def log_compensation(self, reply: CompensationReply, received_t: float | None = None) -> None:
         """One compensation answer: predicted correction and epistemic std of the position
