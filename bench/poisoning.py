@@ -7,8 +7,8 @@ seeded point between 25 % and 75 % of the stream; the labels are recomputed from
 table, as the learner stage would compute them. Test points (a seeded 10 %) stay clean: they
 are the truth the published model is measured against. Per seed: a clean run and one run per
 burst size with the quarantine on; for the first seed also the clean and poisoned runs with
-the quarantine and gate off (what the defence changes). TP = burst points quarantined, FP =
-other points quarantined, withheld = updates the publish gate kept back.
+the quarantine and gate off (what the defence changes; ``--no-off`` skips them). TP = burst
+points quarantined, FP = other points quarantined, withheld = updates the gate kept back.
 
     .venv/bin/robocal sim dataset --scenario paper --n 3004 --seed 0 --out /tmp/paper.parquet
     .venv/bin/robocal import ipa /work/shared/data/ur10-ipa/Series_A --out /tmp/a.parquet
@@ -101,6 +101,7 @@ def main() -> None:
     ap.add_argument("--init", type=int, default=50)
     ap.add_argument("--base", default="auto", choices=("auto", "nominal"))
     ap.add_argument("--clean-only", action="store_true")
+    ap.add_argument("--no-off", action="store_true", help="skip the runs without the defence")
     args = ap.parse_args()
     torch.set_num_threads(1)
     ds = read_dataset(args.data)
@@ -116,7 +117,8 @@ def main() -> None:
         print(json.dumps(rows[-1]), flush=True)
 
     for i, seed in enumerate(args.seeds):
-        if i == 0:
+        with_off = i == 0 and not args.no_off
+        if with_off:
             record(seed, 0.0, "off", run(ds, off, seed, none))
         record(seed, 0.0, "on", run(ds, on, seed, none))
         if args.clean_only:
@@ -126,7 +128,7 @@ def main() -> None:
             burst = burst_rows(ds, args.burst_len, rng)
             poisoned = bumped(ds, burst, mm, rng)
             record(seed, mm, "on", run(poisoned, on, seed, burst))
-            if i == 0:
+            if with_off:
                 record(seed, mm, "off", run(poisoned, off, seed, burst))
     clean = {(r["seed"], r["defence"]): r["test_mean_mm"] for r in rows if r["burst_mm"] == 0}
     for r in rows:

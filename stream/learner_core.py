@@ -5,8 +5,8 @@ Every batch is first screened by the learner's quarantine
 learned. Of the points that pass, every ``holdout_every``-th (by arrival) joins a held-out
 test set (the newest ``max_test_points``) that is never trained on; the rest go to
 :meth:`learner.continual.ContinualLearner.update`. After each update the core reports test
-error (mean/max mm), the prequential batch error, uncertainty on the test set
-(aleatoric/epistemic std, mm) and the memory composition by batch age. A checkpoint (learner
+error and uncertainty (:mod:`learner.holdout`), the prequential batch error and the memory
+composition by batch age. A checkpoint (learner
 state + test set + counters, safetensors with JSON metadata) lets a restart continue without
 losing accepted data; batches already learned (by ``seq``) are refused as duplicates.
 """
@@ -33,6 +33,7 @@ from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from learner.continual import ContinualLearner, UpdateMetrics, load_learner
 from learner.continual_state import state_from_bytes, state_to_bytes
 from learner.features import FeatureSpec, dataset_features, dataset_labels, feature_spec
+from learner.holdout import HeldOut, MemoryAge, heldout_metrics, holdout_mask
 from learner.model import ErrorModel
 from learner.snapshot import read_metadata, snapshot_from_bytes, snapshot_to_bytes
 from stream.messages import Batch, Metrics, ModelHeader, RejectedMessageError
@@ -83,8 +84,7 @@ class LearnerCore:
         self.robot = RobotModel(desc)
         self.T_W_0 = None if T_W_0 is None else np.asarray(T_W_0, dtype=float)
         self.learner: ContinualLearner | None = None
-        self.test_x: np.ndarray | None = None
-        self.test_y = np.empty((0, 6))
+        self.test: HeldOut | None = None
         self._reidentify = False
         if cfg.start_from:
             self._start_from(cfg.start_from)
@@ -92,10 +92,20 @@ class LearnerCore:
         self.n_points = 0
         #: What the learner did with the latest batch (None while a batch is refused).
         self.last_step: UpdateMetrics | None = None
-        self._age: dict[bytes, int] = {}
+        self.age = MemoryAge()
         #: Per window run (epoch): its last batch seq learned and the index of the next point
         #: expected; kept with the checkpoint so a restarted window's batches go on (the stage).
         self.windows: dict[int, tuple[int, int]] = {}
+
+    @property
+    def test_x(self) -> np.ndarray:
+        """Features of the held-out test points (empty before the first batch)."""
+        return np.empty((0, 0)) if self.test is None else self.test.x
+
+    @property
+    def test_y(self) -> np.ndarray:
+        """Labels of the held-out test points (m, rad)."""
+        return np.empty((0, 6)) if self.test is None else self.test.y
 
     def spec_for(self, batch: Batch) -> FeatureSpec:
         p = batch.points[0]
@@ -133,26 +143,20 @@ class LearnerCore:
                 self.spec_for(batch), self.cfg.model, self.cfg.train, self.cfg.seed, self.desc.name
             )
             self.learner = ContinualLearner(model, self.cfg.continual)
-            self.test_x = np.empty((0, X.shape[1]))
+            self.test = HeldOut(X.shape[1], self.cfg.max_test_points)
         passed = self.learner.screen(X, Y)
-        k = self.n_points + np.arange(len(X))
-        test = ((k % self.cfg.holdout_every) == self.cfg.holdout_every - 1) & passed
+        test = holdout_mask(self.n_points, len(X), self.cfg.holdout_every) & passed
         train = ~test & passed
-        self.test_x = np.concatenate([self.test_x, X[test]])
-        self.test_y = np.concatenate([self.test_y, Y[test]])
-        for row in X[train]:
-            self._age[row.tobytes()] = batch.seq
+        self.test.add(X[test], Y[test])
+        self.age.record(X[train], batch.seq)
         self.n_points += len(X)
         self.last_seq = batch.seq
-        cap = self.cfg.max_test_points
-        self.test_x, self.test_y = self.test_x[-cap:], self.test_y[-cap:]
         version = self.learner.version
         m = self.learner.update(X[train], Y[train], screened=True)
         self.last_step = replace(m, quarantined=int((~passed).sum()))
         if self.learner.version == version:
             return None
-        in_memory = {r.tobytes() for r in self.learner.memory.x}
-        self._age = {k: v for k, v in self._age.items() if k in in_memory}
+        self.age.keep(self.learner.memory.x)
         metrics = self.metrics(m.batch_mean_mm, m.train_time_s, now)
         header = ModelHeader(
             model_version=self.learner.version,
@@ -164,29 +168,21 @@ class LearnerCore:
         return Update(header, snap, metrics)
 
     def metrics(self, batch_mean_mm: float, train_time_s: float, now: float | None) -> Metrics:
+        """The metrics message of the published model (test set, memory, counters)."""
         learner = self.learner
-        test_mean = test_max = ale = epi = epi90 = float("nan")
-        if len(self.test_y):
-            ev = learner.model.predict(self.test_x)
-            err = np.linalg.norm(ev.mean[:, :3] - self.test_y[:, :3], axis=1) * 1e3
-            test_mean, test_max = float(err.mean()), float(err.max())
-            ale = float(np.sqrt(ev.aleatoric()[:, :3]).mean() * 1e3)
-            epi_all = np.sqrt(ev.epistemic()[:, :3]).mean(axis=1) * 1e3
-            epi, epi90 = float(epi_all.mean()), float(np.percentile(epi_all, 90))
-        ages = [self.last_seq - self._age.get(r.tobytes(), self.last_seq) for r in learner.memory.x]
-        age_counts = np.bincount(np.asarray(ages, dtype=int), minlength=1) if ages else []
+        test = heldout_metrics(learner.model, self.test.x, self.test.y)
         return Metrics(
             model_version=learner.version,
             n_seen=learner.n_seen,
             memory_size=len(learner.memory),
             train_time_s=train_time_s,
-            test_mean_mm=test_mean,
-            test_max_mm=test_max,
+            test_mean_mm=test.mean_mm,
+            test_max_mm=test.max_mm,
             batch_mean_mm=batch_mean_mm,
-            aleatoric_mm=ale,
-            epistemic_mm=epi,
-            epistemic_p90_mm=epi90,
-            memory_age=tuple(int(c) for c in age_counts),
+            aleatoric_mm=test.aleatoric_mm,
+            epistemic_mm=test.epistemic_mm,
+            epistemic_p90_mm=test.epistemic_p90_mm,
+            memory_age=self.age.histogram(learner.memory.x, self.last_seq),
             quarantined=learner.quarantine.quarantined,
             withheld=learner.n_withheld,
             t=time.time() if now is None else now,
@@ -205,10 +201,9 @@ class LearnerCore:
             "windows": [[e, s, f] for e, (s, f) in self.windows.items()],
             "state": state_to_bytes(self.learner.state_dict()).hex(),
         }
-        ages = np.array(list(self._age.values()), dtype=np.int64)
-        rows = np.array([np.frombuffer(k, dtype=float) for k in self._age]).reshape(len(ages), -1)
+        rows, ages = self.age.arrays()
         data = np_save(
-            {"test_x": self.test_x, "test_y": self.test_y, "age_rows": rows, "ages": ages},
+            {"test_x": self.test.x, "test_y": self.test.y, "age_rows": rows, "ages": ages},
             metadata={"robocal": json.dumps(meta)},
         )
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
@@ -223,7 +218,7 @@ class LearnerCore:
         check_same_robot(learner.model.spec.description, self.desc, f"model {path}")
         self.learner, self._reidentify = learner, True
         self.robot = RobotModel(learner.model.spec.description)  # labels against its nominal
-        self.test_x = np.empty((0, learner.model.spec.n_features))
+        self.test = HeldOut(learner.model.spec.n_features, self.cfg.max_test_points)
 
     def restore(self, path: str | Path) -> None:
         """Continue from a :meth:`checkpoint` file."""
@@ -242,10 +237,8 @@ class LearnerCore:
         self.learner.load_state(state)
         self.robot = RobotModel(model.spec.description or self.desc)
         self._reidentify = False  # the checkpoint is of this cell already
-        self.test_x, self.test_y = arrays["test_x"], arrays["test_y"]
+        self.test = HeldOut(model.spec.n_features, self.cfg.max_test_points)
+        self.test.add(arrays["test_x"], arrays["test_y"])
         self.last_seq, self.n_points = int(meta["last_seq"]), int(meta["n_points"])
         self.windows = {int(e): (int(s), int(f)) for e, s, f in meta.get("windows", [])}
-        self._age = {
-            np.ascontiguousarray(r).tobytes(): int(a)
-            for r, a in zip(arrays["age_rows"], arrays["ages"], strict=True)
-        }
+        self.age = MemoryAge.from_arrays(arrays["age_rows"], arrays["ages"])
