@@ -65,14 +65,21 @@ class DashboardConfig:
 
 @dataclass(frozen=True, kw_only=True)
 class RecorderConfig:
-    """The MCAP file of the recorder and how often it flushes chunks (s)."""
+    """The MCAP file of the recorder, how often it flushes chunks (s), and when it starts a
+    new part: past ``split_size_mb`` (MiB) or ``split_interval_s`` (s); None: never."""
 
     path: str
     flush_interval_s: float = 1.0
+    split_size_mb: float | None = 1024.0
+    split_interval_s: float | None = None
 
     def __post_init__(self) -> None:
         if not self.flush_interval_s > 0:
             raise ConfigError(f"recorder.flush_interval_s must be > 0, got {self.flush_interval_s}")
+        for name in ("split_size_mb", "split_interval_s"):
+            value = getattr(self, name)
+            if value is not None and not (isinstance(value, int | float) and value > 0):
+                raise ConfigError(f"recorder.{name} must be > 0 (or left out), got {value!r}")
 
 
 @dataclass(frozen=True, kw_only=True)

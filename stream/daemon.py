@@ -105,6 +105,9 @@ class Daemon:
                     cfg.recorder.path,
                     cfg.recorder.flush_interval_s,
                     self.log,
+                    split_size_mb=cfg.recorder.split_size_mb,
+                    split_interval_s=cfg.recorder.split_interval_s,
+                    robots=cfg.robots,
                 )
             )
         for robot in cfg.robots:

@@ -1,30 +1,39 @@
-"""Record ``robocal/**`` into MCAP and replay it (to the bus, or offline into the window).
+"""Record ``robocal/**`` into MCAP and read it back in constant memory (replay: stream.replay).
 
 One channel per key expression; JSON streams use message encoding ``json`` with a JSON schema
 named ``robocal.<stream>``; model snapshots use ``robocal-model`` (the framed binary payload of
 stream.messages). ``log_time`` is the receive time, ``publish_time`` the source time ``t``
-(ns; the receive time when a payload has none). Chunks are zstd-compressed and indexed; the
-recorder finishes the open chunk every ``flush_interval_s`` so a killed recorder leaves a file
-:func:`read_mcap` can read up to the last flush. A recording is never truncated or overwritten:
-when the configured file exists, the recorder writes the next free ``<stem>.<n><suffix>``
-(:func:`next_free_path`), one file per start.
+(ns; the receive time when a payload has none). Chunks are zstd-compressed and indexed.
+
+A recording is never truncated or overwritten: when the configured file exists, the recorder
+writes the next free ``<stem>.<n><suffix>`` (:func:`next_free_path`); it starts a new part the
+same way once a part reaches ``split_bytes`` or ``split_interval_s``. Every part opens with a
+metadata record :data:`FILE_METADATA` (robocal version, part number, previous part, start time)
+and the records the caller gives (the daemon: one per robot, see ``recorder_stage``). The open
+chunk is written out every ``flush_interval_s``, so a killed recorder leaves a file that
+:class:`RecordingReader` reads up to the last flush.
 """
 
 from __future__ import annotations
 
-import json
+import contextlib
+import struct
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+from datetime import UTC, datetime
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
+from typing import BinaryIO
 
-import zenoh
 from mcap.exceptions import McapError
-from mcap.reader import NonSeekingReader
+from mcap.reader import NonSeekingReader, SeekingReader
+from mcap.records import Metadata
+from mcap.stream_reader import StreamReader
+from mcap.summary import Summary
 from mcap.writer import Writer
 
 from kinematics.errors import DatasetError
-from stream.bus import BusConfig, open_session, publisher
 from stream.messages import (
     STREAM_TYPES,
     RejectedMessageError,
@@ -35,6 +44,23 @@ from stream.messages import (
 )
 
 MODEL_ENCODING = "robocal-model"
+#: The streams of the sources: what replay republishes unless told otherwise.
+SOURCE_STREAMS = ("joints", "tracker", "temperature")
+#: The metadata record each part starts with.
+FILE_METADATA = "robocal.recording"
+#: The uncompressed size at which a chunk is closed (bytes).
+CHUNK_BYTES = 256 * 1024
+#: Records larger than this end a read (a torn length field must not allocate gigabytes).
+RECORD_LIMIT_BYTES = 256 * 2**20
+_MAGIC = b"\x89MCAP0\r\n"
+#: What reading past the end of an unfinished file raises.
+_TORN = (McapError, EOFError, ValueError, struct.error, MemoryError)
+try:  # a torn zstd frame
+    from zstandard import ZstdError
+
+    _TORN = (*_TORN, ZstdError)
+except ImportError:  # pragma: no cover - mcap depends on zstandard
+    pass
 
 
 @dataclass(frozen=True)
@@ -45,6 +71,14 @@ class Recorded:
     payload: bytes
     log_time_ns: int
     publish_time_ns: int
+
+
+def robocal_version() -> str:
+    """The installed robocal version (``unknown`` when run from a bare checkout)."""
+    try:
+        return version("robocal")
+    except PackageNotFoundError:
+        return "unknown"
 
 
 def source_time_ns(key: str, payload: bytes) -> int | None:
@@ -70,25 +104,59 @@ def next_free_path(path: str | Path) -> Path:
 
 
 class McapRecorder:
-    """A sink: ``add()`` messages, ``flush()`` finished chunks to disk, ``close()`` the file."""
+    """A sink: ``add()`` messages, ``flush()`` finished chunks to disk, ``close()`` the file.
 
-    def __init__(self, path: str | Path, flush_interval_s: float = 1.0) -> None:
+    ``split_bytes`` / ``split_interval_s`` (None: never) start a new part; ``metadata`` are
+    ``(name, {key: value})`` records written at the start of every part. ``paths`` lists the
+    parts written so far, ``path`` is the one being written.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        flush_interval_s: float = 1.0,
+        split_bytes: int | None = None,
+        split_interval_s: float | None = None,
+        metadata: Sequence[tuple[str, dict[str, str]]] = (),
+    ) -> None:
         self.requested = Path(path)
         self.requested.parent.mkdir(parents=True, exist_ok=True)
+        self._interval = flush_interval_s
+        self._split_bytes, self._split_s = split_bytes, split_interval_s
+        self._metadata = tuple(metadata)
+        self.paths: list[Path] = []
+        self.count = 0
+        self._open()
+
+    def _open(self) -> None:
         while True:  # exclusive create: a file another start made meanwhile is never truncated
-            self.path = next_free_path(self.requested)
+            path = next_free_path(self.requested)
             try:
-                self._file = self.path.open("xb")
+                self._file: BinaryIO = path.open("xb")
                 break
             except FileExistsError:
                 continue
-        self._writer = Writer(self._file, chunk_size=256 * 1024)
-        self._writer.start(profile="", library="robocal")
+        self.path = path
+        self._writer = Writer(self._file, chunk_size=CHUNK_BYTES)
+        self._writer.start(profile="", library=f"robocal {robocal_version()}")
+        self._writer.add_metadata(
+            FILE_METADATA,
+            {
+                "robocal_version": robocal_version(),
+                "part": str(len(self.paths) + 1),
+                "previous": self.paths[-1].name if self.paths else "",
+                "started_utc": datetime.now(UTC).isoformat(timespec="milliseconds"),
+                "split_bytes": str(self._split_bytes or ""),
+                "split_interval_s": str(self._split_s or ""),
+            },
+        )
+        for name, data in self._metadata:
+            self._writer.add_metadata(name, {k: str(v) for k, v in data.items()})
+        self.paths.append(path)
         self._channels: dict[str, int] = {}
         self._schemas: dict[str, int] = {}
-        self._interval = flush_interval_s
-        self._last_flush = time.monotonic()
-        self.count = 0
+        self._opened = self._last_flush = time.monotonic()
+        self._writer.flush()  # header and metadata on disk at once
 
     def _channel(self, key: str) -> int:
         if key not in self._channels:
@@ -100,9 +168,9 @@ class McapRecorder:
                 schema_id, encoding = 0, MODEL_ENCODING
             else:
                 if stream not in self._schemas:
-                    schema = {"title": f"robocal.{stream}", "type": "object"}
+                    schema = f'{{"title": "robocal.{stream}", "type": "object"}}'.encode()
                     self._schemas[stream] = self._writer.register_schema(
-                        f"robocal.{stream}", "jsonschema", json.dumps(schema).encode()
+                        f"robocal.{stream}", "jsonschema", schema
                     )
                 schema_id, encoding = self._schemas[stream], "json"
             self._channels[key] = self._writer.register_channel(key, encoding, schema_id)
@@ -112,6 +180,9 @@ class McapRecorder:
         """Record one message received now (or at ``log_time_ns``)."""
         log_ns = time.time_ns() if log_time_ns is None else log_time_ns
         pub_ns = source_time_ns(key, payload)
+        if self._split_due():  # a part is never left empty: the message that is due opens it
+            self._finish()
+            self._open()
         self._writer.add_message(
             self._channel(key),
             log_time=log_ns,
@@ -121,6 +192,11 @@ class McapRecorder:
         )
         self.count += 1
         self.maybe_flush()
+
+    def _split_due(self) -> bool:
+        return (self._split_bytes is not None and self._file.tell() >= self._split_bytes) or (
+            self._split_s is not None and time.monotonic() - self._opened >= self._split_s
+        )
 
     def maybe_flush(self) -> None:
         """Flush when ``flush_interval_s`` has passed since the last flush."""
@@ -132,77 +208,109 @@ class McapRecorder:
         self._writer.flush()
         self._last_flush = time.monotonic()
 
-    def close(self) -> None:
-        """Write the summary and footer and close the file."""
+    def _finish(self) -> None:
         if not self._file.closed:
             self._writer.finish()
             self._file.close()
 
+    def close(self) -> None:
+        """Write the summary and footer and close the file."""
+        self._finish()
+
+
+class RecordingReader:
+    """One MCAP file read in constant memory, finished or not.
+
+    A finished file is read through its chunk index, in log-time order, skipping the chunks
+    outside the asked topics and times. An unfinished one (the recorder was killed) is read
+    front to back up to its last complete chunk: messages in the order they were received,
+    ``truncated`` set once its end is reached. ``position`` is the byte offset read so far.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise DatasetError(f"{self.path}: no such recording")
+        self.size = self.path.stat().st_size
+        with self.path.open("rb") as f:
+            if f.read(len(_MAGIC)) != _MAGIC:
+                raise DatasetError(f"{self.path}: not an MCAP file (no MCAP magic at the start)")
+        self.summary = self._read_summary()
+        self.position = 0
+        self.truncated = False
+
+    @property
+    def finished(self) -> bool:
+        """Whether the file has its summary and footer (the recorder closed it)."""
+        return self.summary is not None
+
+    def _read_summary(self) -> Summary | None:
+        with self.path.open("rb") as f:
+            try:
+                return SeekingReader(f, record_size_limit=RECORD_LIMIT_BYTES).get_summary()
+            except _TORN:
+                return None
+
+    def metadata(self) -> list[tuple[str, dict[str, str]]]:
+        """The metadata records ``(name, data)``, in file order."""
+        out: list[tuple[str, dict[str, str]]] = []
+        with self.path.open("rb") as f:
+            if self.summary is not None:
+                records = SeekingReader(f, record_size_limit=RECORD_LIMIT_BYTES).iter_metadata()
+            else:
+                stream = StreamReader(f, emit_chunks=True, record_size_limit=RECORD_LIMIT_BYTES)
+                records = stream.records
+            with contextlib.suppress(*_TORN):  # an unfinished file: the records before its end
+                for r in records:
+                    if isinstance(r, Metadata):
+                        out.append((r.name, dict(r.metadata)))
+        return out
+
+    def start_ns(self) -> int | None:
+        """The log time of the first message (ns), None when there is none."""
+        stats = self.summary.statistics if self.summary is not None else None
+        if stats is not None and stats.message_count:
+            return stats.message_start_time
+        return next((r.log_time_ns for r in self.messages()), None)
+
+    def messages(
+        self,
+        topics: Callable[[str], bool] | None = None,
+        start_ns: int | None = None,
+        end_ns: int | None = None,
+    ) -> Iterator[Recorded]:
+        """The messages whose key passes ``topics`` and whose log time is in
+        ``[start_ns, end_ns)`` (see the class for the order)."""
+        with self.path.open("rb") as f:
+            if self.summary is not None and self.summary.chunk_indexes:
+                wanted = [c.topic for c in self.summary.channels.values()]
+                wanted = [t for t in wanted if topics is None or topics(t)]
+                if not wanted:
+                    self.position = self.size
+                    return
+                reader = SeekingReader(f, record_size_limit=RECORD_LIMIT_BYTES)
+                found = reader.iter_messages(
+                    wanted, starting_at=start_ns, ending_before=end_ns, log_time_order=True
+                )
+            else:
+                reader = NonSeekingReader(f, record_size_limit=RECORD_LIMIT_BYTES)
+                found = reader.iter_messages(
+                    None, starting_at=start_ns, ending_before=end_ns, log_time_order=False
+                )
+            try:
+                for _, channel, msg in found:
+                    if topics is not None and not topics(channel.topic):
+                        continue
+                    self.position = f.tell()
+                    yield Recorded(channel.topic, msg.data, msg.log_time, msg.publish_time)
+            except _TORN:
+                self.truncated = True
+            self.position = self.size
+
 
 def read_mcap(path: str | Path) -> Iterator[Recorded]:
-    """Messages of a recording in log-time order; a truncated file yields what is complete."""
-    path = Path(path)
-    if not path.exists():
-        raise DatasetError(f"{path}: no such recording")
-    out: list[Recorded] = []
-    with path.open("rb") as f:
-        reader = NonSeekingReader(f, validate_crcs=False)
-        try:
-            for _, channel, msg in reader.iter_messages(log_time_order=False):
-                out.append(Recorded(channel.topic, msg.data, msg.log_time, msg.publish_time))
-        except (McapError, EOFError, ValueError) as exc:
-            if not out:
-                raise DatasetError(f"{path}: not a readable MCAP file: {exc}") from None
-    out.sort(key=lambda r: r.log_time_ns)
-    yield from out
-
-
-def replay_to_bus(
-    path: str | Path,
-    session: zenoh.Session,
-    speed: float | None = None,
-    streams: tuple[str, ...] = ("joints", "tracker", "temperature"),
-    on_message: Callable[[Recorded], None] | None = None,
-) -> int:
-    """Republish the recorded ``streams`` in log-time order at ``speed`` x (None: at once)."""
-    pubs: dict[str, zenoh.Publisher] = {}
-    start_wall = start_log = None
-    n = 0
-    for rec in read_mcap(path):
-        try:
-            if split_key(rec.key)[2] not in streams:
-                continue
-        except RejectedMessageError:
-            continue
-        if speed is not None:
-            if start_wall is None:
-                start_wall, start_log = time.monotonic(), rec.log_time_ns
-            wait = start_wall + (rec.log_time_ns - start_log) / 1e9 / speed - time.monotonic()
-            if wait > 0:
-                time.sleep(wait)
-        if rec.key not in pubs:
-            pubs[rec.key] = publisher(session, rec.key)
-        pubs[rec.key].put(rec.payload)
-        n += 1
-        if on_message is not None:
-            on_message(rec)
-    for pub in pubs.values():
-        pub.undeclare()
-    return n
-
-
-def replay_file(
-    path: str | Path, bus: BusConfig, speed: float | None = None, settle_s: float = 1.0
-) -> int:
-    """Open a session from ``bus``, wait ``settle_s`` for links, replay ``path``; the count."""
-    if not Path(path).exists():
-        raise DatasetError(f"{path}: no such recording")
-    session = open_session(bus)
-    try:
-        time.sleep(settle_s)
-        return replay_to_bus(path, session, speed)
-    finally:
-        session.close()
+    """Every message of a recording in constant memory (see :class:`RecordingReader`)."""
+    return RecordingReader(path).messages()
 
 
 def recorded_samples(path: str | Path, robot: str | None = None) -> Iterator[tuple[str, object]]:
@@ -210,7 +318,7 @@ def recorded_samples(path: str | Path, robot: str | None = None) -> Iterator[tup
     for rec in read_mcap(path):
         try:
             _, rob, stream = split_key(rec.key)
-            if stream in ("joints", "tracker", "temperature") and robot in (None, rob):
+            if stream in SOURCE_STREAMS and robot in (None, rob):
                 yield rec.key, decode(rec.payload, STREAM_TYPES[stream])
         except RejectedMessageError:
             continue

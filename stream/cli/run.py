@@ -12,7 +12,7 @@ import sys
 from dataclasses import asdict
 from typing import TYPE_CHECKING
 
-from stream.cli._base import CLIUsageError, Command, add_json_flag, emit
+from stream.cli._base import Command, add_json_flag, emit
 
 if TYPE_CHECKING:
     from stream.config import DashboardConfig
@@ -44,25 +44,73 @@ def print_dashboard_url(dc: DashboardConfig) -> None:
 
 class ReplayCommand(Command):
     name = "replay"
-    help = "republish the source streams of an MCAP recording on the bus"
+    help = "republish an MCAP recording on the bus, streamed from the file (constant memory)"
+    uses_torch = False
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument("mcap", help="recording made by the recorder stage")
+        parser.add_argument(
+            "mcap", nargs="+", help="recording(s) made by the recorder (the parts, in order)"
+        )
         parser.add_argument("--speed", type=float, default=None, help="x real time (default: max)")
+        parser.add_argument(
+            "--topics",
+            default="joints,tracker,temperature",
+            help="comma-separated streams (joints, tracker, temperature, model, ...) or full keys "
+            "to republish (default: the source streams)",
+        )
+        parser.add_argument("--start", type=float, default=None, help="s after the first message")
+        parser.add_argument("--end", type=float, default=None, help="s after the first message")
+        parser.add_argument(
+            "--loop",
+            action="store_true",
+            help="replay again and again until Ctrl-C, each pass shifted in t and seq",
+        )
         parser.add_argument(
             "--connect", action="append", default=[], help="endpoint, e.g. tcp/127.0.0.1:7447"
         )
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
-        from stream.bus import BusConfig
-        from stream.mcap_io import replay_file
+        from tqdm import tqdm
 
-        if args.speed is not None and not args.speed > 0:
-            raise CLIUsageError(f"--speed must be > 0, got {args.speed}")
+        from stream.bus import BusConfig
+        from stream.replay import ReplayOptions, check_recordings, replay_files
+
+        options = ReplayOptions(
+            speed=args.speed,
+            topics=tuple(t.strip() for t in args.topics.split(",") if t.strip()),
+            start_s=args.start,
+            end_s=args.end,
+            loops=None if args.loop else 1,
+        )
         bus = BusConfig(connect=tuple(args.connect), multicast_scouting=not args.connect)
-        n = replay_file(args.mcap, bus, args.speed)
-        emit({"published": n, "mcap": args.mcap}, args.json, f"republished {n} samples")
+        total = check_recordings(args.mcap)
+        with tqdm(
+            total=total,
+            unit="B",
+            unit_scale=True,
+            desc="replay",
+            file=sys.stderr,
+            disable=args.json,
+        ) as bar:
+            seen = [0, 0]  # bytes shown, pass
+
+            def progress(done: int, k: int) -> None:
+                if k != seen[1]:  # a new pass of --loop
+                    seen[:] = [0, k]
+                    bar.reset(total)
+                    bar.set_postfix_str(f"pass {k + 1}")
+                if done - seen[0] >= 1 << 20 or done == total:
+                    bar.update(done - seen[0])
+                    seen[0] = done
+
+            result = replay_files(args.mcap, bus, options, on_progress=progress)
+        out = {"mcap": args.mcap, **result.__dict__}
+        text = f"republished {result.published} samples ({result.passes} pass(es))" + "".join(
+            f"\n{p}: unfinished (recorder killed?), replayed up to its last complete chunk"
+            for p in result.truncated
+        )
+        emit(out, args.json, text + ("\nstopped" if result.stopped else ""))
         return 0
 
 
