@@ -46,6 +46,8 @@ from stream.dashboard_scores import error_colors, rolling_coverage, score_points
 from stream.messages import Diagnostics, Metrics
 
 APPLICATION_ID = "robocal"
+#: Most named series in one recording (drop reasons come from messages: a bound on entities).
+MAX_SERIES = 200
 RAD_TO_DEG = 180.0 / np.pi
 
 
@@ -170,6 +172,8 @@ class Dashboard:
         counts = {"all": sum(d.dropped.values()), **d.dropped}
         for reason, n in counts.items():
             path = f"drops/{stage}/{rr.escape_entity_path_part(reason)}"
+            if path not in self._named and len(self._named) >= MAX_SERIES:
+                continue  # a flood of made-up stages or reasons draws no more series
             self._style(path, names=[f"{d.stage}: {reason}"])
             self.rec.log(path, rr.Scalars(float(n)))
 

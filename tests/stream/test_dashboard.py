@@ -17,7 +17,7 @@ from kinematics.model import RobotModel
 from learner.evidential import Evidential
 from stream.bus import free_port
 from stream.compensation import CompensationReply
-from stream.dashboard import Dashboard, PointBatch, read_scalars, viewer_url
+from stream.dashboard import MAX_SERIES, Dashboard, PointBatch, read_scalars, viewer_url
 from stream.dashboard_robot import robot_archetypes, segments, skeleton, z_to
 from stream.dashboard_scores import error_colors, norm_band, rolling_coverage, score_points
 from stream.messages import Diagnostics, Metrics
@@ -115,6 +115,16 @@ def test_rrd_holds_every_trace_on_both_timelines(tmp_path):
     assert {"/world/points", "/world/errors", "/world/robot/links", "/world/robot/joints"} <= (
         entities
     )
+
+
+def test_a_flood_of_drop_reasons_draws_a_bounded_number_of_series(tmp_path):
+    dash = Dashboard(UR10)
+    dash.save(tmp_path / "f.rrd")
+    flood = {f"made_up_{i}": 1 for i in range(3 * MAX_SERIES)}
+    dash.log_diagnostics(Diagnostics(stage="window", accepted=0, dropped=flood))
+    dash.close()
+    drops = [e for e in read_scalars(tmp_path / "f.rrd") if e.startswith("/drops/")]
+    assert "/drops/window/all" in drops and 10 < len(drops) <= MAX_SERIES
 
 
 def test_norm_band_matches_the_chi_distribution_and_student_t_is_wider():
