@@ -187,9 +187,10 @@ class Worker:
 
     ``idle(now)`` is called at least every ``tick_s`` (periodic work: flush, diagnostics). An
     exception that escapes ``handle`` or ``idle`` is fatal: it is kept in :attr:`error` and the
-    thread ends (the owner's supervisor reports it and stops the process). At most
-    ``max_queue`` items wait; beyond that new samples are dropped and counted in
-    :attr:`overflow`.
+    thread ends (the owner's supervisor reports it and stops the process). The queue is
+    bounded: a payload over ``max_payload_bytes`` is dropped before it is copied (counted in
+    :attr:`too_large`), and beyond ``max_queue`` items or ``max_queue_bytes`` of payload waiting
+    new samples are dropped (counted in :attr:`overload`), so a flood costs bounded memory.
     """
 
     def __init__(
@@ -199,15 +200,21 @@ class Worker:
         idle: Callable[[float], None] | None = None,
         tick_s: float = 0.2,
         max_queue: int = 200_000,
+        max_queue_bytes: int = 64 * 2**20,
+        max_payload_bytes: int = 64 * 2**20,
     ) -> None:
         self.name = name
         self.queue: queue.Queue[Received | None] = queue.Queue(max_queue)
+        self.max_queue_bytes, self.max_payload_bytes = max_queue_bytes, max_payload_bytes
+        self.queued_bytes = 0
+        self._bytes_lock = threading.Lock()
         self._handle = handle
         self._idle = idle
         self._tick = tick_s
         self._abort = threading.Event()
         self.error: BaseException | None = None
-        self.overflow = 0
+        self.overload = 0
+        self.too_large = 0
         self.abandoned = 0
         self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
         self._thread.start()
@@ -218,11 +225,27 @@ class Worker:
         return self._thread.is_alive()
 
     def callback(self, sample: zenoh.Sample) -> None:
-        """The Zenoh subscriber callback: enqueue only (drop and count when full)."""
+        """The Zenoh subscriber callback: enqueue only (drop and count when too large or full)."""
+        self.offer(sample, self.max_payload_bytes)
+
+    def offer(self, sample: zenoh.Sample, max_payload_bytes: int) -> None:
+        """Enqueue ``sample`` unless its payload exceeds ``max_payload_bytes`` (``too_large``,
+        refused before it is copied) or the queue is full (``overload``)."""
+        n = len(sample.payload)
+        with self._bytes_lock:
+            if n > max_payload_bytes:
+                self.too_large += 1
+                return
+            if self.queued_bytes + n > self.max_queue_bytes or self.queue.full():
+                self.overload += 1
+                return
+            self.queued_bytes += n
         try:
             self.queue.put_nowait(_to_received(sample))
         except queue.Full:
-            self.overflow += 1
+            with self._bytes_lock:
+                self.queued_bytes -= n
+                self.overload += 1
 
     def _loop(self) -> None:
         next_idle = time.monotonic() + self._tick
@@ -231,6 +254,9 @@ class Worker:
                 item = self.queue.get(timeout=self._tick)
             except queue.Empty:
                 item = ...
+            if isinstance(item, Received):
+                with self._bytes_lock:
+                    self.queued_bytes -= len(item.payload)
             try:
                 if item is None:
                     break

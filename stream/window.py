@@ -331,6 +331,11 @@ class Batcher:
         """The ``seq`` of the next batch."""
         return self._seq
 
+    @property
+    def pending(self) -> tuple[DataPoint, ...]:
+        """The points of the next batch so far (counted, not yet sent in a batch)."""
+        return tuple(self._points)
+
     def add(self, points: list[DataPoint]) -> list[Batch]:
         out = []
         for p in points:

@@ -7,12 +7,20 @@ stage: whatever a handler or ``on_idle`` raises is counted under its reason (a
 :class:`RejectedMessageError`'s, ``invalid`` for other errors, ``idle_error`` in ``on_idle``),
 logged at a bounded rate and dropped; the stage runs on. Only resource failures (``OSError``:
 a full disk, a read-only state directory; ``MemoryError``) are fatal: the worker keeps the
-error, its thread ends, and the daemon's supervisor stops the process with one line.
+error, its thread ends, and the daemon's supervisor stops the process with one line. State
+writes go through :meth:`Stage.persist`: with ``on_disk_full = "wait"`` a write that fails for
+lack of space or permission is retried every ``retry_s`` until it succeeds (one line when it
+starts waiting, one when it resumes) instead of ending the stage.
+
+Memory is bounded: a sample larger than :data:`~stream.messages.MAX_PAYLOAD_BYTES` (models:
+:data:`MAX_MODEL_BYTES`) is dropped as ``too_large`` before it is copied, and what the worker's
+bounded queue cannot take is dropped as ``overload``; both are counted in the diagnostics.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import queue
 import threading
 import time
@@ -23,7 +31,15 @@ import zenoh
 from kinematics.errors import RobocalError
 from stream.bus import Received, Worker, declare_alive, publisher
 from stream.log import JsonLogger
-from stream.messages import DropCounter, RejectedMessageError, encode, key
+from stream.messages import MAX_PAYLOAD_BYTES, DropCounter, RejectedMessageError, encode, key
+from stream.state import describe_os_error
+
+#: The largest model snapshot a stage takes (bytes); every other stream: MAX_PAYLOAD_BYTES.
+MAX_MODEL_BYTES = 64 * 2**20
+#: What ``on_disk_full`` may say: end the stage (the daemon exits 2) or wait until writable.
+DISK_FULL_POLICIES = ("stop", "wait")
+#: OSErrors that waiting can cure (space or permission given back), the rest are fatal at once.
+_WAITABLE = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM}
 
 
 def is_fatal(exc: BaseException) -> bool:
@@ -42,6 +58,9 @@ class Stage:
     """Base of the pipeline stages of one robot; subclasses implement :meth:`handle`."""
 
     name = "stage"
+    #: ``"stop"`` or ``"wait"`` (see :meth:`persist`); the daemon sets it from its config.
+    on_disk_full = "stop"
+    retry_s = 1.0
 
     def __init__(
         self, session: zenoh.Session, cell: str, robot: str, logger: JsonLogger | None = None
@@ -53,6 +72,10 @@ class Stage:
         self._queryables: list[tuple[zenoh.Queryable, QueryWorker]] = []
         self._pubs: dict[str, zenoh.Publisher] = {}
         self._last_diag = 0.0
+        self._closing = threading.Event()
+        #: Samples taken off the queue and handled (accepted or dropped by the handler).
+        self.handled = 0
+        self._worker_drops = {"overload": 0, "too_large": 0, "shutdown": 0}
         self.worker = Worker(f"{self.name}-{robot}", self._handle, idle=self._idle)
         self._token = declare_alive(session, cell, robot, self.name)
 
@@ -60,7 +83,41 @@ class Stage:
         return key(self.cell, self.robot, stream)
 
     def subscribe(self, stream: str) -> None:
-        self._subs.append(self.session.declare_subscriber(self.key(stream), self.worker.callback))
+        limit = MAX_MODEL_BYTES if stream == "model" else MAX_PAYLOAD_BYTES
+        offer = self.worker.offer
+        self._subs.append(
+            self.session.declare_subscriber(self.key(stream), lambda s: offer(s, limit))
+        )
+
+    def persist(self, write: Callable[[], object], what: str) -> None:
+        """Run the state write ``write()``; on a full disk or lost permission either re-raise
+        (``on_disk_full = "stop"``: fatal) or retry every ``retry_s`` until it succeeds or the
+        stage closes (``"wait"``)."""
+        waited = 0
+        while True:
+            try:
+                write()
+            except OSError as exc:
+                if self.on_disk_full != "wait" or exc.errno not in _WAITABLE:
+                    raise
+                if self._closing.is_set():
+                    raise
+                if not waited:
+                    self.log.log(
+                        "error",
+                        "state_unwritable",
+                        stage=self.name,
+                        robot=self.robot,
+                        what=what,
+                        cause=describe_os_error(exc),
+                        action=f"waiting, retry every {self.retry_s} s",
+                    )
+                waited += 1
+                self._closing.wait(self.retry_s)
+                continue
+            if waited:
+                self.log.info("state_writable", stage=self.name, robot=self.robot, what=what)
+            return
 
     def answer(self, stream: str, reply: Callable[[zenoh.Query], None]) -> None:
         """Declare a queryable on ``stream``; ``reply(query)`` runs on its own thread."""
@@ -73,6 +130,7 @@ class Stage:
         self._pubs[stream].put(payload)
 
     def _handle(self, item: Received) -> None:
+        self.handled += 1
         try:
             self.handle(item)
         except BaseException as exc:  # bad input: count, log at a bounded rate, go on
@@ -117,10 +175,21 @@ class Stage:
         """Periodic work (at least every 0.2 s); a no-op hook by default."""
 
     def publish_diagnostics(self, now: float | None = None) -> None:
-        for reason, n in (("overflow", self.worker.overflow), ("shutdown", self.worker.abandoned)):
-            if n:
-                self.counter.dropped[reason] = n
+        self.count_worker_drops()
         self.put("diagnostics", encode(self.counter.diagnostics(now or time.time())))
+
+    def count_worker_drops(self) -> None:
+        """Add the worker's drops since the last call (``overload``, ``too_large``,
+        ``shutdown``) to the stage's counter."""
+        w = self.worker
+        for reason, n in (
+            ("overload", w.overload),
+            ("too_large", w.too_large),
+            ("shutdown", w.abandoned),
+        ):
+            if n > self._worker_drops[reason]:
+                self.counter.drop(reason, n - self._worker_drops[reason])
+                self._worker_drops[reason] = n
 
     def drain(self, timeout_s: float = 60.0) -> bool:
         """Wait until every received sample is handled."""
@@ -130,7 +199,8 @@ class Stage:
         """Last work before closing (flush, checkpoint); a no-op hook by default."""
 
     def unsubscribe(self) -> None:
-        """Stop receiving (what is queued is still handled)."""
+        """Stop receiving (what is queued is still handled; a waiting :meth:`persist` ends)."""
+        self._closing.set()
         for sub in self._subs:
             _quietly(sub.undeclare)
         self._subs.clear()
