@@ -103,8 +103,13 @@ class DaemonConfig:
     #: SIGTERM/SIGINT to exit (s): queued work is abandoned past it; a watchdog ends the
     #: process 1.5 s later whatever is stuck.
     shutdown_timeout_s: float = 7.0
+    #: A full disk or read-only state directory while running: ``"stop"`` (one line, exit 2)
+    #: or ``"wait"`` (one line, state writes retried every second until they succeed).
+    on_disk_full: str = "stop"
 
     def __post_init__(self) -> None:
+        if self.on_disk_full not in ("stop", "wait"):
+            raise ConfigError(f"on_disk_full must be 'stop' or 'wait', got {self.on_disk_full!r}")
         if not 0.5 <= self.shutdown_timeout_s <= 600:
             raise ConfigError(
                 f"shutdown_timeout_s must be in 0.5..600, got {self.shutdown_timeout_s}"

@@ -115,6 +115,8 @@ class Daemon:
         for src in self.sources:  # after every stage, so that nothing they publish is missed
             src.start()
         for st in self.stages:
+            st.on_disk_full = cfg.on_disk_full
+        for st in self.stages:
             if isinstance(st, RecorderStage):
                 self.recordings["mcap"] = str(st.recorder.path)
         self.log.info(
@@ -207,6 +209,15 @@ class Daemon:
             if stage.name != "recorder":
                 stage.drain(timeout_s)
 
+    def counts(self) -> dict[str, dict]:
+        """The end-of-run summary: accepted and dropped (by reason) per ``stage/robot``."""
+        out = {}
+        for st in self.stages:
+            st.count_worker_drops()
+            c = st.counter
+            out[f"{st.name}/{st.robot}"] = {"accepted": c.accepted, "dropped": dict(c.dropped)}
+        return out
+
     def failed_stage(self) -> Stage | None:
         """The first stage whose worker died, or None."""
         return next((st for st in [*self.sources, *self.stages] if st.failure is not None), None)
@@ -243,7 +254,7 @@ class Daemon:
                 dash.close()
             except Exception as exc:  # noqa: BLE001
                 failures["dashboard"] = exc
-        self.log.info("daemon_stopped", suppressed_logs=self.log.suppressed)
+        self.log.info("daemon_stopped", suppressed_logs=self.log.suppressed, counts=self.counts())
         self.stages.clear()
         if self._own_session and self.session is not None:
             with contextlib.suppress(Exception):
