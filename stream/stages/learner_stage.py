@@ -3,7 +3,9 @@
 Snapshots are published on ``.../model`` as the framed payload of stream.messages (header JSON
 + safetensors); the same payload answers queries on ``.../model`` so a late joiner gets the
 newest model at once. With a checkpoint path, the state is written after every update and
-restored on start (a restart loses no accepted batch).
+restored on start, and every batch the stage accepts is first appended (fsync'd) to an
+:class:`~stream.state.AcceptedLog` beside it that the next checkpoint clears; a restart replays
+the log after the checkpoint, so even a ``kill -9`` loses no accepted point.
 
 Batches are numbered by the window per run (``epoch``, ``seq``, ``first``); the stage keeps,
 with the checkpoint, the last ``seq`` and next point index of the :data:`KEPT_EPOCHS` window
@@ -11,7 +13,11 @@ runs it heard from last, and renumbers the batches it learns with its own counte
 restarted window (same epoch, numbering continued; or a new epoch) is never refused as a
 duplicate, a batch already learned is, and a gap in the numbering is reported as points lost.
 A batch whose ``seq`` jumps more than ``max_seq_jump`` ahead, or whose epoch lies ahead of the
-clock, is refused as ``future``. A checkpoint that cannot be written (full disk, read-only
+clock, is refused as ``future``. Forged numbers cannot wedge the stage: a duplicate is a
+``seq`` learned in this run (or below what the checkpoint holds), not merely one below the
+highest seen, so a forged jump does not refuse the genuine batches after it; an epoch the stage
+no longer (or never) knew is joined where it stands, so a flood of forged epochs that pushes
+out the genuine one costs it nothing. A checkpoint that cannot be written (full disk, read-only
 directory) leaves no temporary file and the previous checkpoint intact, and ends the stage.
 """
 
@@ -41,10 +47,12 @@ from stream.messages import (
     encode_model,
 )
 from stream.stages._base import Stage
-from stream.state import remove_temporaries
+from stream.state import AcceptedLog, remove_temporaries
 
 #: Window runs whose numbering the learner remembers (the most recently used ones).
-KEPT_EPOCHS = 4
+KEPT_EPOCHS = 16
+#: Learned ``seq`` s remembered per window run; past it the oldest half is forgotten.
+KEPT_SEQS = 100_000
 
 
 class LearnerStage(Stage):
@@ -71,6 +79,12 @@ class LearnerStage(Stage):
         self.duplicates = 0
         self.lost_points = 0
         self.checkpoint_path = None if checkpoint is None else Path(checkpoint)
+        self.accepted_log = None
+        if self.checkpoint_path is not None:
+            self.accepted_log = AcceptedLog(self.checkpoint_path.with_suffix(".accepted"))
+        #: Per epoch: the lowest ``seq`` that may still be new, and the ``seq`` s learned above it.
+        self._learned: dict[int, tuple[int, set[int]]] = {}
+        self.replayed_points = 0
         self.latest: bytes | None = None
         self.last_update: Update | None = None
         self.metrics: deque[Metrics] = deque(maxlen=10_000)
@@ -86,6 +100,7 @@ class LearnerStage(Stage):
                 },
             )
             self._publish(self._restored_update())
+        self._replay()
         self.answer("model", self._reply_latest)
         self.subscribe("batches")
 
@@ -97,15 +112,52 @@ class LearnerStage(Stage):
         snap = snapshot_to_bytes(learner.model, {"model_version": learner.version})
         return Update(header, snap, self.core.metrics(float("nan"), 0.0, None))
 
+    def _replay(self) -> None:
+        """Learn the batches of the accepted log that the checkpoint does not hold yet."""
+        if self.accepted_log is None:
+            return
+        n_batches = 0
+        for payload in self.accepted_log.records():
+            try:
+                batch = decode(payload, Batch)
+                last_seq = self.core.windows.get(batch.epoch, (-1, 0))[0]
+                if batch.epoch in self.core.windows and batch.seq <= last_seq:
+                    continue  # the checkpoint was written, the log not yet cleared
+                self._learn(batch, self._check_order(batch))
+            except RejectedMessageError as exc:  # refused when it came, refused again
+                self.counter.drop(exc.reason)
+                continue
+            n_batches += 1
+            self.replayed_points += len(batch.points)
+        if n_batches:
+            self.log.info(
+                "accepted_replayed",
+                robot=self.robot,
+                batches=n_batches,
+                points=self.replayed_points,
+            )
+
     def handle(self, item: Received) -> None:
         batch = decode(item.payload, Batch)
         lost = self._check_order(batch)
+        if self.accepted_log is not None:  # durable before it is learned
+            self.persist(lambda: self.accepted_log.append(item.payload), "accepted log")
+        self._learn(batch, lost)
+
+    def _learn(self, batch: Batch, lost: int) -> None:
         core = self.core
         update = core.add_batch(replace(batch, seq=core.last_seq + 1))
-        core.windows.pop(batch.epoch, None)  # most recently used last
-        core.windows[batch.epoch] = (batch.seq, batch.first + len(batch.points))
+        last_seq, next_point = core.windows.pop(batch.epoch, (-1, 0))  # most recently used last
+        end = batch.first + len(batch.points)
+        core.windows[batch.epoch] = (max(last_seq, batch.seq), max(next_point, end))
+        floor, learned = self._learned.setdefault(batch.epoch, (0, set()))  # joined: none below
+        learned.add(batch.seq)
+        if len(learned) > KEPT_SEQS:
+            keep = sorted(learned)[-KEPT_SEQS // 2 :]
+            self._learned[batch.epoch] = (keep[0], set(keep))
         for old in list(core.windows)[:-KEPT_EPOCHS]:
             del core.windows[old]
+            self._learned.pop(old, None)
         self.counter.accept()
         if lost:
             self.lost_points += lost
@@ -127,8 +179,11 @@ class LearnerStage(Stage):
         (``future``); the number of points lost before it."""
         if b.epoch > (time.time() + self.max_clock_ahead_s) * 1000:
             raise RejectedMessageError("future", f"batch epoch {b.epoch} ms is ahead of the clock")
-        last_seq, next_first = self.core.windows.get(b.epoch, (-1, 0))
-        if b.seq <= last_seq:
+        if b.epoch not in self.core.windows:
+            return 0  # a run this stage never knew, or forgot: joined where it stands
+        last_seq, next_first = self.core.windows[b.epoch]
+        floor, learned = self._learned.setdefault(b.epoch, (last_seq + 1, set()))
+        if b.seq < floor or b.seq in learned:
             self.duplicates += 1
             raise RejectedMessageError("duplicate", f"batch {b.epoch}/{b.seq} already learned")
         if b.seq > last_seq + self.max_seq_jump or b.first > next_first + self.max_seq_jump**2:
@@ -138,14 +193,20 @@ class LearnerStage(Stage):
         return max(b.first - next_first, 0)
 
     def _checkpoint(self) -> None:
-        """Write the checkpoint; on OSError remove the temporary file and re-raise (fatal)."""
+        """Write the checkpoint, then clear the accepted log it now holds; on OSError remove
+        the temporary file and re-raise (fatal) or wait (``on_disk_full``)."""
         if self.checkpoint_path is None:
             return
+        self.persist(self._write_checkpoint, "checkpoint")
+
+    def _write_checkpoint(self) -> None:
         try:
-            self.core.checkpoint(self.checkpoint_path)
+            written = self.core.checkpoint(self.checkpoint_path)
         except OSError:
             remove_temporaries(self.checkpoint_path)
             raise
+        if written is not None and self.accepted_log is not None:
+            self.accepted_log.clear()
 
     def _publish(self, update: Update) -> None:
         payload = encode_model(update.header, update.snapshot)

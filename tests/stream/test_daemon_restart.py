@@ -23,8 +23,9 @@ from sim_sources.streaming import StreamingConfig, cell_samples
 from stream.bus import BusConfig, alive_stages, free_port, open_session
 from stream.learner_core import LearnerCore, LearnerStageConfig
 from stream.mcap_io import read_mcap
-from stream.messages import Diagnostics, decode, key
+from stream.messages import Batch, Diagnostics, decode, key
 from stream.sources import SimCellSource
+from stream.state import AcceptedLog
 
 pytestmark = pytest.mark.integration
 
@@ -155,9 +156,13 @@ def test_kill_9_mid_stream_then_restart_continues_without_duplicates(tmp_path):
         LearnerCore.restore(core, state / f"{robot}.checkpoint.safetensors")
         ((epoch, (last_seq, next_point)),) = core.windows.items()
         assert epoch == window_state["epoch"] and last_seq < window_state["next_seq"]
-        # what the restart must report: the window's points the learner never checkpointed
-        expect_lost = window_state["points"] - next_point
-        assert expect_lost >= 0 and emitted_before_kill - next_point <= expect_lost
+        # accepted and kept: the checkpoint, the learner's accepted log after it, the window's
+        # batch being filled; what the restart must report lost: the rest (batches in flight)
+        logged = AcceptedLog(state / f"{robot}.checkpoint.accepted").records()
+        logged_points = sum(len(decode(r, Batch).points) for r in logged)
+        pending = len(window_state["pending"])
+        expect_lost = window_state["points"] - pending - next_point - logged_points
+        assert expect_lost >= 0 and emitted_before_kill <= window_state["points"]
 
         restarted = start(cfg)
         wait_alive(client, 3, restarted)
@@ -190,6 +195,10 @@ def test_kill_9_mid_stream_then_restart_continues_without_duplicates(tmp_path):
         assert lost == []
     restored = next(e for e in events if e["event"] == "checkpoint_restored")
     assert restored["windows"][str(epoch)]["next_point"] == next_point
+    replayed = [e["points"] for e in events if e["event"] == "accepted_replayed"]
+    assert replayed == ([logged_points] if logged_points else [])
+    resumed = next(e for e in events if e["event"] == "window_state")
+    assert resumed["pending"] == pending and resumed["points"] == window_state["points"]
     # the old recording: untouched and readable up to its last flush; the new one: separate
     assert sha(old) == old_sha
     assert sum(1 for _ in read_mcap(old)) > 0
@@ -199,7 +208,8 @@ def test_kill_9_mid_stream_then_restart_continues_without_duplicates(tmp_path):
     with new.open("rb") as f:
         assert make_reader(f).get_summary().statistics.message_count > 0
     print(f"\nrestart: duplicates 0, lost reported {expect_lost}, emitted before kill "
-          f"{emitted_before_kill}, checkpointed {next_point}")  # fmt: skip
+          f"{emitted_before_kill}, checkpointed {next_point}, replayed from the accepted log "
+          f"{logged_points}, kept pending in the window {pending}")  # fmt: skip
 
 
 def test_a_state_dir_that_goes_away_stops_the_daemon_with_one_line_and_exit_2(tmp_path):
