@@ -158,8 +158,13 @@ def iso9283_report(
     singles = len(ds) - sum(g.size for g in groups)
     if singles:
         notes.append(f"{singles} rows command a pose fewer than {min_cycles} times: not used")
-    if short := [pr.name for pr in poses if pr.rows.size < STANDARD_CYCLES]:
-        notes.append(f"fewer than the standard's {STANDARD_CYCLES} cycles at: {', '.join(short)}")
+    if short := [pr for pr in poses if pr.rows.size < STANDARD_CYCLES]:
+        sizes = sorted({pr.rows.size for pr in short})
+        where = ", ".join(pr.name for pr in short) if len(short) <= 5 else f"{len(short)} poses"
+        notes.append(
+            f"fewer than the standard's {STANDARD_CYCLES} cycles at {where} "
+            f"({'/'.join(map(str, sizes))} cycles)"
+        )
     if model is None:
         notes.append("no --model: AP/RP before compensation only")
     distance = _distance(poses, p.Y, residual)
@@ -250,7 +255,10 @@ def save_plot(report: IsoReport, path: str | Path) -> Path:
         if all(pr.after is not None for pr in report.poses):
             after = [getattr(pr.after, key) for pr in report.poses]
             ax.bar(x + 0.2, after, 0.4, label="after", color="tab:blue")
-        ax.set_xticks(x, names)
+        if len(names) <= 12:
+            ax.set_xticks(x, names)
+        else:  # many poses (a dataset's own repeats): their order of first appearance
+            ax.set_xlabel("pose (order of first appearance)")
         ax.set_ylabel(f"{title} (mm)")
         ax.set_title(f"ISO 9283 {title}")
         ax.legend()

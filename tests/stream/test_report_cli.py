@@ -39,7 +39,10 @@ def test_report_on_the_cube_before_and_after(files, tmp_path, capsys):
         assert set(out[key]) == {"ap_p_max_mm", "ap_p_mean_mm", "rp_l_max_mm"}
         assert all(np.isfinite(v) for v in out[key].values())
     assert out["distance"]["poses"] == ["P2", "P4"] and out["distance"]["after"] is not None
-    assert any("fewer than the standard's 30 cycles" in n for n in out["notes"])
+    assert any(
+        "fewer than the standard's 30 cycles at P1, P2, P3, P4, P5 (4 cycles)" in n
+        for n in out["notes"]
+    )
     # AP_P of P1 before compensation, recomputed here from the raw dataset
     ds = read_dataset(cube)
     rows = np.flatnonzero(np.abs(ds.q() - out["poses"][0]["q_rad"]).max(axis=1) < 1e-9)
