@@ -9,7 +9,7 @@ is exactly one temperature). Parameters ``k{i}_per_K``; linear, zero = no effect
 With ``terms`` instead, each term ``(link, channels)`` is one parameter: joint ``link``'s
 lengths grow by ``k`` times the mean of ``channels`` above the reference. A description's
 ``[sensors]`` map gives one term per mapped link; without a map the gap workflow forms the
-terms from the data (:mod:`kinematics.gap.thermal`), one channel per term, named
+terms from the data (:mod:`kinematics.gap.formed`), one channel per term, named
 ``k{link}_{channel}_per_K``.
 """
 
