@@ -131,6 +131,19 @@ class DaemonConfig:
                 )
         if any("dashboard" in r.stages for r in self.robots) and self.dashboard is None:
             raise ConfigError("a robot runs the dashboard stage but there is no [dashboard]")
+        n = sum("dashboard" in r.stages for r in self.robots)
+        if self.dashboard is not None and self.dashboard.serve and n > 1:
+            d = self.dashboard  # robot i serves on web_port + i and grpc_port + i
+            if abs(d.web_port - d.grpc_port) < n or max(d.web_port, d.grpc_port) + n > 65536:
+                raise ConfigError(
+                    f"dashboard: {n} robots serve on web_port..+{n - 1} and grpc_port..+{n - 1}; "
+                    f"those ranges overlap or pass 65535 ({d.web_port}, {d.grpc_port})"
+                )
+
+
+def dashboard_index(cfg: DaemonConfig, robot: str) -> int:
+    """The robot's place among the robots with a dashboard: its served ports' offset."""
+    return [r.name for r in cfg.robots if "dashboard" in r.stages].index(robot)
 
 
 def _build(cls: type, raw: Any, where: str) -> Any:

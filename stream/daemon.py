@@ -30,7 +30,7 @@ import zenoh
 from kinematics.description import load_description
 from kinematics.model import RobotModel
 from stream.bus import open_session
-from stream.config import DaemonConfig, RobotConfig
+from stream.config import DaemonConfig, RobotConfig, dashboard_index
 from stream.dashboard import Dashboard
 from stream.log import JsonLogger
 from stream.mcap_io import next_free_path
@@ -76,6 +76,8 @@ class Daemon:
         """Check the state directories, open the session and the stages; on any failure the
         stages already open are closed again before the error is raised."""
         cfg = self.cfg
+        # Every robot's description first: a missing one stops the start before anything opens.
+        self._descriptions = {rc.name: load_description(rc.description) for rc in cfg.robots}
         # Small MLPs train fastest on one thread; more threads spin against the stages' threads.
         torch.set_num_threads(cfg.torch_threads)
         if cfg.checkpoint_dir is not None:
@@ -128,7 +130,7 @@ class Daemon:
 
     def _start_robot(self, rc: RobotConfig) -> None:
         cfg, s = self.cfg, self.session
-        desc = load_description(rc.description)
+        desc = self._descriptions[rc.name]
         T_W_0 = None if rc.T_W_0 is None else np.asarray(rc.T_W_0, dtype=float)
         state = None if cfg.checkpoint_dir is None else Path(cfg.checkpoint_dir)
         if "window" in rc.stages:
@@ -177,7 +179,9 @@ class Daemon:
             dash.save(rrd)
             self.recordings[f"rrd/{rc.name}"] = str(rrd)
         if dc.serve:
-            self.log.info("dashboard_served", url=dash.serve(dc.web_port, dc.grpc_port, dc.host))
+            i = dashboard_index(self.cfg, rc.name)  # each robot its own ports: none collide
+            url = dash.serve(dc.web_port + i, dc.grpc_port + i, dc.host)
+            self.log.info("dashboard_served", robot=rc.name, url=url)
         if dc.connect:
             dash.connect(dc.connect)
         self.dashboards[rc.name] = dash

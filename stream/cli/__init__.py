@@ -19,11 +19,21 @@ from stream.cli.data import COMMANDS as _DATA
 from stream.cli.gap import COMMANDS as _GAP
 from stream.cli.hpo import COMMANDS as _HPO
 from stream.cli.learn import COMMANDS as _LEARN
+from stream.cli.line import COMMANDS as _LINE
 from stream.cli.report import COMMANDS as _REPORT
 from stream.cli.run import COMMANDS as _RUN
 from stream.cli.sim import COMMANDS as _SIM
 
-_COMMANDS: tuple[type[Command], ...] = (*_DATA, *_SIM, *_LEARN, *_HPO, *_GAP, *_RUN, *_REPORT)
+_COMMANDS: tuple[type[Command], ...] = (
+    *_DATA,
+    *_SIM,
+    *_LEARN,
+    *_HPO,
+    *_GAP,
+    *_RUN,
+    *_REPORT,
+    *_LINE,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,229 @@
+"""A two-robot line on loopback: the shipped router config (mutual TLS, access control), a
+``robocal run`` daemon for both robots (learner certificate), a dashboard daemon (dashboard
+certificate), and sources publishing with the robot, tracker and DAQ certificates; models
+come out for each robot and a compensation client gets answers. A robot that cannot start
+stops the daemon with exit code 2 and one line."""
+
+import json
+import signal
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from kinematics.errors import ConfigError, RobocalError
+from sim_sources.cell import simulate
+from sim_sources.scenarios import get_scenario
+from sim_sources.streaming import StreamingConfig, cell_samples
+from stream.bus import BusConfig, TlsConfig, alive_stages, free_port, open_session
+from stream.compensation import CompensationReply, CompensationRequest
+from stream.config import config_from_dict, load_config
+from stream.daemon import Daemon
+from stream.messages import JointSample, TemperatureSample, TrackerSample, decode, encode, key
+from stream.router import open_router, router_config
+from stream.security import ROLES, make_line_certs
+
+pytestmark = pytest.mark.integration
+DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
+ROBOCAL = str(Path(sys.executable).with_name("robocal"))
+ROBOTS = ("r1", "r2")
+LEARNER = """
+[window]
+batch_size = 10
+
+[learner]
+holdout_every = 5
+
+[learner.model]
+hidden_layers = 1
+neurons = 8
+members = 1
+
+[learner.continual]
+memory = 30
+batch = 10
+init = 10
+epochs_per_update = 3
+init_epochs = 10
+"""
+
+
+def line_toml(certs: Path, role: str, port: int, stages: list[str], extra: str = "") -> str:
+    """A line config: both robots in one file, a client of the router with ``role``'s cert."""
+    tls = {k: str(certs / f) for k, f in (("ca", "ca.pem"), ("cert", f"{role}.pem"))}
+    tls["key"] = str(certs / f"{role}.key")
+    robots = "".join(
+        f'[[robot]]\nname = "{r}"\ndescription = "fanuc_m900ib700"\nstages = {json.dumps(stages)}\n'
+        f"T_W_0 = {{T_W_0}}\n\n"
+        for r in ROBOTS
+    )
+    tls_line = ", ".join(f'{k} = "{v}"' for k, v in tls.items())
+    return (
+        f'cell = "line"\n{extra}\n[bus]\nmode = "client"\n'
+        f'connect = ["tls/127.0.0.1:{port}"]\nmulticast_scouting = false\n'
+        f"tls = {{ {tls_line} }}\n\n{robots}{LEARNER}"
+    )
+
+
+def role_session(certs: Path, role: str, port: int) -> zenoh.Session:
+    tls = TlsConfig(
+        ca=str(certs / "ca.pem"), cert=str(certs / f"{role}.pem"), key=str(certs / f"{role}.key")
+    )
+    return open_session(BusConfig.loopback(port, listen=False, tls=tls))
+
+
+def publish_sources(sessions: dict[str, zenoh.Session], robot: str, ds) -> int:
+    """The cell's samples, each stream from the session of its role (robot, tracker, DAQ)."""
+    streams = {JointSample: ("robot", "joints"), TrackerSample: ("tracker", "tracker")}
+    streams[TemperatureSample] = ("daq", "temperature")
+    pubs, n = {}, 0
+    for sample in cell_samples(ds, StreamingConfig(period_s=1.0)):
+        role, stream = streams[type(sample)]
+        if stream not in pubs:
+            pubs[stream] = sessions[role].declare_publisher(
+                key("line", robot, stream), congestion_control=zenoh.CongestionControl.BLOCK
+            )
+        pubs[stream].put(encode(sample))
+        n += 1
+    for p in pubs.values():
+        p.undeclare()
+    return n
+
+
+def test_two_robot_line_end_to_end_over_tls(tmp_path):
+    certs = tmp_path / "certs"
+    make_line_certs(certs, ROLES)
+    port = free_port()
+    router = open_router(router_config(DEPLOY / "zenohd.json5", (f"tls/127.0.0.1:{port}",), certs))
+    data = {r: simulate(get_scenario("paper"), 30, seed) for seed, r in enumerate(ROBOTS)}
+    T_W_0 = json.dumps(data["r1"].meta.T_W_0)
+    (tmp_path / "state").mkdir()
+    learner_cfg = tmp_path / "line.toml"
+    learner_cfg.write_text(
+        line_toml(
+            certs,
+            "learner",
+            port,
+            ["window", "learner", "compensation"],
+            f'checkpoint_dir = "{tmp_path / "state"}"',
+        ).replace("{T_W_0}", T_W_0)
+    )
+    proc = subprocess.Popen(
+        [ROBOCAL, "run", "--config", str(learner_cfg)], stderr=subprocess.PIPE, text=True
+    )
+    sessions = {
+        r: role_session(certs, r, port) for r in ("robot", "tracker", "daq", "compensation")
+    }
+    dash_text = line_toml(certs, "dashboard", port, ["dashboard"]).replace("{T_W_0}", T_W_0)
+    dash_text += f'\n[dashboard]\nrrd = "{tmp_path / "line.rrd"}"\n'
+    (tmp_path / "dashboard.toml").write_text(dash_text)
+    dashboard = Daemon(load_config(tmp_path / "dashboard.toml")).start()
+    try:
+        client = sessions["compensation"]
+        deadline = time.monotonic() + 90
+        while len(alive_stages(client, "line", timeout_s=0.5)) < 8:  # 3 + 1 stages per robot
+            assert proc.poll() is None, proc.stderr.read()
+            assert time.monotonic() < deadline, alive_stages(client, "line")
+            time.sleep(0.2)
+        models = {r: [] for r in ROBOTS}
+        subs = [
+            client.declare_subscriber(key("line", r, "model"), lambda s, r=r: models[r].append(1))
+            for r in ROBOTS
+        ]
+        time.sleep(0.3)
+        for r in ROBOTS:
+            assert publish_sources(sessions, r, data[r]) > 0
+        deadline = time.monotonic() + 60
+        while not all(models.values()) and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.stderr.read()
+            time.sleep(0.1)
+        assert all(models.values()), models
+        for r in ROBOTS:  # a compensation client of the line gets each robot's answer
+            ds = data[r]
+            temps = {c[5:]: float(ds.table[c].iloc[0]) for c in ds.table if c.startswith("temp_")}
+            req = CompensationRequest(
+                q=tuple(ds.q()[0]), temperatures=temps, deflection=tuple(ds.deflection()[0])
+            )
+            replies = list(
+                client.get(key("line", r, "compensate"), payload=encode(req), timeout=10.0)
+            )
+            assert len(replies) == 1
+            assert replies[0].ok is not None, replies[0].err.payload.to_string()
+            reply = decode(replies[0].ok.payload.to_bytes(), CompensationReply)
+            assert reply.model_version >= 0 and len(reply.q_corrected) == 6
+        for sub in subs:
+            sub.undeclare()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(60) == 0
+        for r in ROBOTS:  # each robot's own state, side by side in one directory
+            assert (tmp_path / "state" / f"{r}.checkpoint.safetensors").exists()
+        seen = {st.robot: st.counter.accepted for st in dashboard.stages}
+        assert set(seen) == set(ROBOTS) and all(seen.values()), seen
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        dashboard.stop(timeout_s=10)
+        for s in sessions.values():
+            s.close()
+        router.close()
+    for r in ROBOTS:
+        assert (tmp_path / f"line_{r}.rrd").stat().st_size > 0
+
+
+def two_robots(tmp_path: Path, r2_description: str) -> str:
+    return (
+        f'cell = "line"\ncheckpoint_dir = "{tmp_path}"\n'
+        f'[bus]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\nmulticast_scouting = false\n'
+        f'[[robot]]\nname = "r1"\ndescription = "fanuc_m900ib700"\n'
+        f'[[robot]]\nname = "r2"\ndescription = "{r2_description}"\n'
+    )
+
+
+def test_a_robot_that_cannot_start_stops_the_daemon_with_exit_2_and_one_line(tmp_path):
+    """The second robot's checkpoint is corrupt, found after the first robot's stages are
+    open: they close again, the bus closes, one line, exit 2, no hang."""
+    (tmp_path / "r2.checkpoint.safetensors").write_bytes(b"not a checkpoint")
+    cfg = tmp_path / "line.toml"
+    cfg.write_text(two_robots(tmp_path, "fanuc_m900ib700"))
+    proc = subprocess.Popen(
+        [ROBOCAL, "run", "--config", str(cfg)], stderr=subprocess.PIPE, text=True
+    )
+    try:
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 2, err
+    errors = [line for line in err.splitlines() if not line.startswith("{")]
+    assert len(errors) == 1 and errors[0].startswith("robocal: error:"), err
+    assert "r2.checkpoint.safetensors" in errors[0]
+    assert not any('"level":"error"' in line for line in err.splitlines()), err
+
+
+def test_a_missing_description_is_refused_before_anything_opens(tmp_path):
+    daemon = Daemon(
+        config_from_dict(tomllib.loads(two_robots(tmp_path, str(tmp_path / "no.toml"))))
+    )
+    with pytest.raises(RobocalError, match="no.toml"):
+        daemon.start()
+    assert daemon.session is None and daemon.stages == []
+
+
+def test_robots_serving_dashboards_get_their_own_ports():
+    base = {
+        "robot": [
+            {"name": r, "description": "ur10", "stages": ["dashboard"]} for r in ("a", "b", "c")
+        ],
+        "dashboard": {"serve": True, "web_port": 9090, "grpc_port": 9876},
+    }
+    cfg = config_from_dict(base)
+    from stream.config import dashboard_index
+
+    assert [dashboard_index(cfg, r) for r in ("a", "b", "c")] == [0, 1, 2]
+    with pytest.raises(ConfigError, match="overlap"):
+        config_from_dict(
+            {**base, "dashboard": {"serve": True, "web_port": 9090, "grpc_port": 9091}}
+        )
