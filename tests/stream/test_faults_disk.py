@@ -1,0 +1,211 @@
+"""A full disk and a read-only state directory under a running ``robocal run`` (issue 19): the
+state directory is a 2 MB tmpfs that the test fills or remounts read-only mid-stream. With
+``on_disk_full = "stop"`` the daemon ends with one ``stage_failed`` line and exit 2, no
+temporary file left, the last checkpoint readable and the MCAP (on another disk) finished; with
+``"wait"`` it says so in one line, goes on, and resumes its checkpoints once the directory is
+writable again. Needs root (mount); skipped with the reason otherwise."""
+
+import json
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from sim_sources.cell import simulate
+from sim_sources.scenarios import get_scenario
+from sim_sources.streaming import StreamingConfig
+from stream.bus import BusConfig, alive_stages, free_port, open_session
+from stream.learner_core import LearnerCore, LearnerStageConfig
+from stream.messages import key
+from stream.sources import SimCellSource
+
+pytestmark = pytest.mark.integration
+
+CONFIG = """
+cell = "plant"
+checkpoint_dir = "{state}"
+shutdown_timeout_s = 5.0
+on_disk_full = "{policy}"
+
+[bus]
+mode = "peer"
+listen = ["tcp/127.0.0.1:{port}"]
+multicast_scouting = false
+
+[[robot]]
+name = "{robot}"
+description = "{robot}"
+stages = ["window", "learner"]
+T_W_0 = {T_W_0}
+
+[window]
+batch_size = 10
+
+[learner]
+holdout_every = 5
+
+[learner.model]
+hidden_layers = 1
+neurons = 8
+
+[learner.continual]
+memory = 30
+batch = 10
+init = 10
+epochs_per_update = 2
+init_epochs = 5
+
+[recorder]
+path = "{dir}/plant.mcap"
+flush_interval_s = 0.2
+"""
+
+
+@pytest.fixture
+def small_fs(tmp_path):
+    """A 2 MB tmpfs at ``tmp_path/state`` (unmounted afterwards)."""
+    mnt = tmp_path / "state"
+    mnt.mkdir()
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mnt)], capture_output=True
+    )
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs (needs root): {done.stderr.decode().strip()}")
+    yield mnt
+    subprocess.run(["umount", "-l", str(mnt)], check=False)
+
+
+def fill(directory: Path) -> Path:
+    """Fill the file system of ``directory`` to the last byte; the filler file."""
+    filler = directory / "filler"
+    with filler.open("wb") as f:
+        try:
+            while True:
+                f.write(b"\0" * 65536)
+                f.flush()
+        except OSError:
+            pass
+    return filler
+
+
+def start(cfg: Path) -> subprocess.Popen:
+    exe = str(Path(sys.executable).with_name("robocal"))
+    return subprocess.Popen([exe, "run", "--config", str(cfg)], stderr=subprocess.PIPE, text=True)
+
+
+def wait_for(cond, timeout: float = 60.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while not cond() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return cond()
+
+
+def run_cell(tmp_path, state: Path, policy: str, fault, recover=None):
+    """Start the daemon, stream a cell, inject ``fault(state)`` after the first checkpoint,
+    then ``recover(state)`` (if given) and SIGTERM; returns exit code, log events, models
+    seen after the fault and after recovery."""
+    ds = simulate(get_scenario("paper"), 200, 21)
+    robot, port = ds.meta.robot, free_port()
+    cfg = tmp_path / "robocal.toml"
+    text = CONFIG.format(
+        state=state, policy=policy, port=port, robot=robot, T_W_0=json.dumps(ds.meta.T_W_0),
+        dir=tmp_path,
+    )  # fmt: skip
+    cfg.write_text(text)
+    proc = start(cfg)
+    client = open_session(BusConfig.loopback(port, listen=False))
+    models: list[float] = []
+    ckpt = state / f"{robot}.checkpoint.safetensors"
+    source = SimCellSource(
+        client, "plant", robot, ds, StreamingConfig(joint_rate_hz=10.0, period_s=1.0), speed=20
+    )
+    feeder = threading.Thread(target=source.start)
+    marks = {}
+    try:
+        assert wait_for(
+            lambda: len(alive_stages(client, "plant", 0.5)) >= 3 or proc.poll() is not None
+        )
+        sub = client.declare_subscriber(
+            key("plant", robot, "model"), lambda s: models.append(time.monotonic())
+        )
+        feeder.start()
+        assert wait_for(lambda: ckpt.exists() and len(models) >= 2), "no checkpoint"
+        marks["before"] = ckpt.read_bytes()
+        fault(state)
+        marks["fault"] = time.monotonic()
+        if recover is None:
+            code = proc.wait(60)
+        else:
+            time.sleep(3.0)  # the daemon waits, its queues fill
+            assert proc.poll() is None, "the daemon ended although told to wait"
+            recover(state)
+            marks["recovered"] = time.monotonic()
+            n = len(models)
+            assert wait_for(lambda: len(models) > n + 1, 60), "no model after recovery"
+            proc.send_signal(signal.SIGTERM)
+            code = proc.wait(20)
+        sub.undeclare()
+    finally:
+        source.stop()
+        if feeder.is_alive():
+            feeder.join(30)
+        client.close()
+        if proc.poll() is None:
+            proc.kill()
+    events = [json.loads(x) for x in proc.stderr.read().splitlines() if x.startswith("{")]
+    return code, events, ckpt, marks, models
+
+
+def restorable(ckpt: Path) -> int:
+    """The point count of a checkpoint (it reads back)."""
+    core = LearnerCore.__new__(LearnerCore)
+    core.cfg, core.desc = LearnerStageConfig(), None
+    LearnerCore.restore(core, ckpt)
+    return core.n_points
+
+
+def test_a_full_disk_stops_the_daemon_with_one_line_and_exit_2(tmp_path, small_fs):
+    code, events, ckpt, _, _ = run_cell(tmp_path, small_fs, "stop", fill)
+    failed = [e for e in events if e["event"] == "stage_failed"]
+    assert code == 2 and len(failed) == 1, (code, failed)
+    assert "[ENOSPC]" in failed[0]["cause"]
+    assert [p.name for p in small_fs.iterdir() if p.name.startswith(".")] == []  # no temp file
+    assert restorable(ckpt) > 0  # the last good checkpoint reads back
+    with (tmp_path / "plant.mcap").open("rb") as f:
+        assert make_reader(f).get_summary().statistics.message_count > 0  # finished, footer
+    print(f"\nfull disk (stop): exit {code}, one line: {failed[0]['cause']}")
+
+
+def test_a_read_only_state_dir_with_wait_pauses_then_resumes(tmp_path, small_fs):
+    def read_only(state):
+        subprocess.run(["mount", "-o", "remount,ro", str(state)], check=True)
+
+    def writable(state):
+        subprocess.run(["mount", "-o", "remount,rw", str(state)], check=True)
+
+    code, events, ckpt, marks, models = run_cell(
+        tmp_path, small_fs, "wait", read_only, recover=writable
+    )
+    names = [e["event"] for e in events]
+    unwritable = [e for e in events if e["event"] == "state_unwritable"]
+    assert code == 0 and "stage_failed" not in names, (code, unwritable)
+    assert 1 <= len(unwritable) <= 2 and all("[EROFS]" in e["cause"] for e in unwritable)
+    assert "state_writable" in names
+    assert [p.name for p in small_fs.iterdir() if p.name.startswith(".")] == []
+    assert restorable(ckpt) > 0
+    after = sum(t > marks["recovered"] for t in models)
+    print(f"\nread-only (wait): exit {code}, {len(unwritable)} line(s) while waiting, "
+          f"{after} models after the directory came back")  # fmt: skip
+
+
+def test_on_disk_full_must_be_stop_or_wait():
+    from kinematics.errors import ConfigError
+    from stream.config import config_from_dict
+
+    with pytest.raises(ConfigError, match="on_disk_full"):
+        config_from_dict({"on_disk_full": "retry", "robot": [{"name": "r", "description": "ur10"}]})
