@@ -1,9 +1,13 @@
 """The Rerun dashboard: what it writes to an .rrd, its bands and coverage, the robot's solid
 geometry, and the one URL that opens a served recording."""
 
+import signal
 import socket
+import subprocess
+import sys
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from urllib.parse import parse_qs, urlparse
 
 import numpy as np
@@ -190,3 +194,49 @@ def test_serve_opens_the_web_viewer_and_grpc_ports():
     for port in (web, grpc):
         socket.create_connection(("127.0.0.1", port), timeout=5).close()
     dash.close()
+
+
+RUN_CONFIG = """
+cell = "c"
+checkpoint_dir = "{dir}"
+[bus]
+mode = "peer"
+listen = ["tcp/127.0.0.1:{port}"]
+multicast_scouting = false
+[[robot]]
+name = "ur10"
+description = "ur10"
+stages = ["dashboard"]
+[dashboard]
+serve = true
+web_port = {web}
+grpc_port = {grpc}
+host = "127.0.0.1"
+"""
+
+
+@pytest.mark.integration
+def test_robocal_run_prints_the_one_url_of_the_live_dashboard(tmp_path):
+    web, grpc, port = free_port(), free_port(), free_port()
+    config = tmp_path / "run.toml"
+    config.write_text(RUN_CONFIG.format(dir=tmp_path, port=port, web=web, grpc=grpc))
+    robocal = str(Path(sys.executable).with_name("robocal"))
+    proc = subprocess.Popen([robocal, "run", "--config", str(config)], stderr=subprocess.PIPE)
+    try:
+        lines = [proc.stderr.readline().decode() for _ in range(1)]
+        while not lines[-1].startswith("dashboard:") and lines[-1] and len(lines) < 50:
+            lines.append(proc.stderr.readline().decode())
+        assert lines[-1].strip() == f"dashboard: {viewer_url('127.0.0.1', web, grpc)}", lines
+        deadline = time.monotonic() + 60.0
+        while True:  # the daemon serves what the line promised
+            try:
+                for p in (web, grpc):
+                    socket.create_connection(("127.0.0.1", p), timeout=2).close()
+                break
+            except OSError:
+                assert time.monotonic() < deadline and proc.poll() is None
+                time.sleep(0.3)
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(30)
+    assert code == 0
