@@ -248,7 +248,7 @@ class RecordingReader:
         with self.path.open("rb") as f:
             try:
                 return SeekingReader(f, record_size_limit=RECORD_LIMIT_BYTES).get_summary()
-            except _TORN:
+            except (*_TORN, OSError):  # no footer (OSError: shorter than one), read front to back
                 return None
 
     def metadata(self) -> list[tuple[str, dict[str, str]]]:

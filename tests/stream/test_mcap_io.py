@@ -168,6 +168,25 @@ def test_a_killed_recorder_is_read_up_to_its_last_flush(tmp_path, capsys):
     assert out["published"] == len(got) and out["truncated"] == [str(path)]
 
 
+def test_a_recording_cut_at_any_byte_reads_as_its_whole_chunks(tmp_path):
+    path = tmp_path / "full.mcap"
+    rec = McapRecorder(path, flush_interval_s=3600)
+    for i in range(600):
+        rec.add("robocal/c/r/joints", joint(i), log_time_ns=i)
+        if i % 100 == 99:
+            rec.flush()
+    rec.close()
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    counts = set()
+    for end in range(8, len(data), 89):
+        cut.write_bytes(data[:end])
+        got = seqs(RecordingReader(cut).messages())
+        assert got == list(range(len(got)))
+        counts.add(len(got))
+    assert counts == {0, 100, 200, 300, 400, 500, 600}
+
+
 @pytest.mark.integration
 def test_the_recorder_stage_writes_robot_metadata(tmp_path):
     port = free_port()
