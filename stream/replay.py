@@ -117,9 +117,10 @@ def replay_to_bus(
                     if opts.speed is not None:
                         if wall0 is None:
                             wall0, log0 = time.monotonic(), rec.log_time_ns
-                        due = wall0 + (rec.log_time_ns - log0) / 1e9 / opts.speed
-                        if due > time.monotonic():
-                            time.sleep(due - time.monotonic())
+                        wait = wall0 + (rec.log_time_ns - log0) / 1e9 / opts.speed
+                        wait -= time.monotonic()
+                        if wait > 0:
+                            time.sleep(wait)
                     payload = rec.payload
                     if k == 0 and opts.loops != 1:
                         _track(rec, t_range, max_seq)
@@ -136,6 +137,8 @@ def replay_to_bus(
                     if on_progress is not None:
                         on_progress(done_before + reader.position, k)
                 done_before += reader.size
+                if on_progress is not None:
+                    on_progress(done_before, k)
                 if reader.truncated and k == 0:
                     result.truncated.append(str(reader.path))
             result.passes += 1
