@@ -201,10 +201,17 @@ def group_repeated(q: np.ndarray, tolerance_rad: float = 1e-6) -> list[np.ndarra
         raise ConfigError(f"pose tolerance must be >= 0 rad, got {tolerance_rad}")
     label = np.full(len(q), -1)
     groups: list[np.ndarray] = []
+    order = np.argsort(q[:, 0], kind="stable")  # candidates: rows this close in joint 1
+    first = q[order, 0]
     for i in range(len(q)):
         if label[i] >= 0:
             continue
-        same = (label < 0) & (np.abs(q - q[i]).max(axis=1) <= tolerance_rad)
+        lo = np.searchsorted(first, q[i, 0] - tolerance_rad, "left")
+        hi = np.searchsorted(first, q[i, 0] + tolerance_rad, "right")
+        near = order[lo:hi]
+        same = np.sort(
+            near[(label[near] < 0) & (np.abs(q[near] - q[i]).max(axis=1) <= tolerance_rad)]
+        )
         label[same] = len(groups)
-        groups.append(np.flatnonzero(same))
+        groups.append(same)
     return groups

@@ -84,3 +84,14 @@ def test_group_repeated_within_tolerance():
     groups = group_repeated(q, 1e-6)
     assert [g.tolist() for g in groups] == [[0, 2], [1, 3], [4]]
     assert len(group_repeated(q, 0.0)) == 5
+
+
+def test_group_repeated_finds_shuffled_cycles_with_encoder_jitter():
+    rng = np.random.default_rng(0)
+    poses = rng.uniform(-3, 3, (5, 6))
+    order = rng.permutation(np.repeat(np.arange(5), 30))
+    q = poses[order] + rng.normal(0.0, 1e-6, (150, 6))
+    groups = group_repeated(q, 1e-4)
+    assert [g.size for g in groups] == [30] * 5
+    for g in groups:
+        assert np.unique(order[g]).size == 1 and np.all(np.diff(g) > 0)
