@@ -18,9 +18,10 @@ its data on either; the viewer opens on ``time``. Entities (mm unless named):
   last ``coverage_window`` points, beside the nominal 0.9
 - ``inputs/joints`` (deg), ``inputs/temperatures`` (°C), ``drops/<stage>/<reason>`` (counts)
 - ``compensation/{correction,residual,epistemic,trusted}``: each answer of the service
-- ``world/robot/{links,joints,tool}`` (``stream.dashboard_robot``), ``world/points`` (the newest
-  ``max_points`` measured positions coloured by what is left of their error),
-  ``world/errors`` (measured error arrows, scaled by ``arrow_scale``)
+- ``world/robot/{links,joints,tool}`` (``stream.dashboard_robot``, at the newest point),
+  ``world/points`` (the newest ``max_points`` measured positions coloured by what is left of
+  their error, redrawn every ``cloud_every`` points), ``world/errors`` (measured error arrows,
+  scaled by ``arrow_scale``)
 
 Sinks: ``save`` an .rrd, ``serve`` a web viewer (:func:`viewer_url` opens the live recording),
 or ``connect`` to a running viewer.
@@ -83,11 +84,13 @@ class Dashboard:
         recording_id: str = "robocal",
         arrow_scale: float = 50.0,
         max_points: int = 5000,
+        cloud_every: int = 100,
         coverage_window: int = 200,
         seed: int = 0,
     ) -> None:
         self.robot = robot
-        self.arrow_scale, self.max_points = arrow_scale, max_points
+        self.arrow_scale, self.max_points, self.cloud_every = arrow_scale, max_points, cloud_every
+        self._unseen = 0  # points not yet drawn in the cloud
         self.coverage_window, self.seed = coverage_window, seed
         self.rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id)
         self.rec.set_log_time_enabled(False)  # the two timelines below are the only ones
@@ -223,7 +226,20 @@ class Dashboard:
         self._positions = np.concatenate([self._positions, b.positions_m])[-keep:]
         self._errors = np.concatenate([self._errors, b.errors_m[:, :3]])[-keep:]
         self._left_mm = np.concatenate([self._left_mm, left_mm])[-keep:]
+        self._unseen += len(left_mm)
         self._at(t)
+        for name, archetype in robot_archetypes(self.robot, b.q[-1]).items():
+            self.rec.log(f"world/robot/{name}", archetype)
+        if self._unseen >= self.cloud_every:
+            self._log_cloud()
+
+    def _log_cloud(self) -> None:
+        """The newest ``max_points`` points and error arrows, coloured by what is left of their
+        error (green 0 to red at the 95th percentile): a whole cloud, so only every
+        ``cloud_every`` new points (a cloud per batch would grow the recording quadratically)."""
+        self._unseen = 0
+        if len(self._left_mm) == 0:
+            return
         scale = float(np.percentile(self._left_mm, 95))
         self.rec.log(
             "world/points",
@@ -233,15 +249,16 @@ class Dashboard:
             "world/errors",
             rr.Arrows3D(origins=self._positions, vectors=self._errors * self.arrow_scale),
         )
-        for name, archetype in robot_archetypes(self.robot, b.q[-1]).items():
-            self.rec.log(f"world/robot/{name}", archetype)
 
     def flush(self) -> None:
+        """Draw the points not yet in the cloud, and send what is buffered."""
+        if self._unseen:
+            self._log_cloud()
         self.rec.flush()
 
     def close(self) -> None:
         """Flush and finish the sinks (the .rrd gets its footer)."""
-        self.rec.flush()
+        self.flush()
         self.rec.disconnect()
 
 
