@@ -23,6 +23,7 @@ from stream.dashboard_view import ViewerCheck, find_chromium, open_viewer
 from stream.messages import Diagnostics, Metrics
 
 CHROMIUM = find_chromium()
+VIEWPORT = (1200, 750)  # smaller than a screen: the software rasterizer draws it faster
 pytestmark = [
     pytest.mark.integration,
     pytest.mark.skipif(
@@ -84,7 +85,7 @@ def served():
 
 def test_the_printed_url_opens_the_live_recording(served):
     url, _, grpc = served
-    check = open_viewer(url, f":{grpc}/", CHROMIUM, timeout_s=120)
+    check = open_viewer(url, f":{grpc}/", CHROMIUM, timeout_s=120, viewport=VIEWPORT)
     assert check.grpc_requests >= 1, check.console_errors
     assert check.robot_pixels >= 200 and check.series_pixels >= 200, (
         check.robot_pixels,
@@ -104,7 +105,12 @@ def test_the_viewer_without_the_recording_address_shows_no_data(served):
         return bool(drawn) and time.monotonic() - drawn[0] >= 3.0
 
     check = open_viewer(
-        f"http://localhost:{web}/", f":{grpc}/", CHROMIUM, 120, until=viewer_drawn_3_s_ago
+        f"http://localhost:{web}/",
+        f":{grpc}/",
+        CHROMIUM,
+        120,
+        until=viewer_drawn_3_s_ago,
+        viewport=VIEWPORT,
     )
     assert drawn, "the viewer never drew its interface"
     assert check.grpc_requests == 0
