@@ -40,7 +40,7 @@ def build_source(
     if isinstance(sc, DatasetSourceConfig):
         from stream.sources.dataset import dataset_source
 
-        return dataset_source(session, cell, robot, sc, desc.n_joints)
+        return dataset_source(session, cell, robot, sc, desc)
     if isinstance(sc, SimSourceConfig):
         return sim_source(sc, session, cell, robot, desc)
     raise TypeError(f"not a source config: {sc!r}")

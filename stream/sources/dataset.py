@@ -23,6 +23,7 @@ from kinematics.dataset import (
     secondary_columns,
     temperature_columns,
 )
+from kinematics.description import RobotDescription
 from kinematics.errors import ConfigError
 from kinematics.transforms import xyz_quat_from_transform
 from sim_sources.streaming import Sample, StreamingConfig, cell_samples, visit_times
@@ -121,11 +122,19 @@ class DatasetSource(SimCellSource):
 
 
 def dataset_source(
-    session: zenoh.Session, cell: str, robot: str, cfg: DatasetSourceConfig, n_joints: int
+    session: zenoh.Session, cell: str, robot: str, cfg: DatasetSourceConfig, desc: RobotDescription
 ) -> DatasetSource:
-    """Read and check ``cfg.path`` (ConfigError/DatasetError: one line) and make its source."""
+    """Read and check ``cfg.path`` against the robot's description (ConfigError/DatasetError:
+    one line) and make its source."""
     ds = in_base_frame(read_dataset(cfg.path))
-    if ds.n_joints != n_joints:
-        raise ConfigError(f"{cfg.path}: {ds.n_joints} joints, robot {robot!r} has {n_joints}")
+    if ds.n_joints != desc.n_joints:
+        raise ConfigError(f"{cfg.path}: {ds.n_joints} joints, robot {robot!r} has {desc.n_joints}")
+    tool = ds.meta.T_6_S
+    if tool is not None and not np.allclose(np.asarray(tool, dtype=float), desc.tool, atol=1e-9):
+        xyz = np.round(np.asarray(tool, dtype=float)[:3, 3], 4).tolist()
+        raise ConfigError(
+            f"{cfg.path}: its probe T_6_S (at {xyz} m) is not the tool of robot {robot!r}'s "
+            "description; describe the robot with that [tool] (the labels would be off by it)"
+        )
     streaming = streaming_config(cfg, ds)
     return DatasetSource(session, cell, robot, ds, streaming, cfg.speed or None)

@@ -14,13 +14,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinematics.dataset import read_dataset
+from kinematics.dataset import read_dataset, write_dataset
+from kinematics.description import load_description
 from kinematics.errors import ConfigError
 from stream.config import config_from_dict
 from stream.daemon import Daemon
 from stream.log import JsonLogger
 from stream.sources.config import DatasetSourceConfig
-from stream.sources.dataset import dataset_samples, in_base_frame, streaming_config
+from stream.sources.dataset import (
+    dataset_samples,
+    dataset_source,
+    in_base_frame,
+    streaming_config,
+)
 from stream.window import Joiner, WindowConfig
 from tests.stream.sources.conftest import CELL, ROBOT
 
@@ -135,3 +141,18 @@ def test_a_retimed_dataset_keeps_its_rows(dataset_file):
     cfg = replace(DatasetSourceConfig(path=str(dataset_file)), period_s=2.0)
     points = joined(in_base_frame(ds), cfg)
     assert [p.t for p in points] == pytest.approx(1.0 + 0.5 + 2.0 * np.arange(len(ds)))
+
+
+def test_a_dataset_measured_with_another_probe_is_refused(dataset_file, tmp_path, bus):
+    ds = read_dataset(dataset_file)
+    tool = np.asarray(ds.meta.T_6_S)
+    tool[2, 3] += 0.093  # a probe 93 mm further out than the description's tool
+    path = write_dataset(
+        type(ds)(ds.table, replace(ds.meta, T_6_S=tool.tolist())), tmp_path / "p.parquet"
+    )
+    with pytest.raises(
+        ConfigError, match=r"p.parquet: its probe T_6_S .* is not the tool of robot"
+    ):
+        dataset_source(
+            bus[0], CELL, ROBOT, DatasetSourceConfig(path=str(path)), load_description(ROBOT)
+        )
