@@ -8,7 +8,8 @@ its data on either; the viewer opens on ``time``. Entities (mm unless named):
 - ``metrics/test_error/{mean,max}`` (held-out test points, newest model),
   ``metrics/batch_error/mean``, ``metrics/uncertainty/{aleatoric,epistemic,epistemic_p90}``
   (std), ``metrics/memory/size``, ``metrics/memory/age`` (bar chart: memory points per batch
-  age), ``metrics/model/version``, ``metrics/quarantined`` (when the learner reports it)
+  age), ``metrics/model/version``, ``metrics/{quarantined,withheld}`` (points the learner's
+  quarantine kept out, updates its publish gate withheld; cumulative)
 - ``points/error/{measured,predicted,interval,epistemic}``: each point's position error and
   the lagging model's prediction of it, with its 90 % predictive and epistemic bands
   (``interval`` and ``epistemic`` hold two series, lower and upper)
@@ -164,9 +165,10 @@ class Dashboard:
         if m.memory_age:
             log("metrics/memory/age", rr.BarChart(np.asarray(m.memory_age, dtype=float)))
         log("metrics/model/version", rr.Scalars(float(m.model_version)))
-        quarantined = getattr(m, "quarantined", None)
-        if quarantined is not None:
-            log("metrics/quarantined", rr.Scalars(float(quarantined)))
+        for name in ("quarantined", "withheld"):  # learner counts, where the learner has them
+            value = getattr(m, name, None)
+            if value is not None:
+                log(f"metrics/{name}", rr.Scalars(float(value)))
 
     def log_diagnostics(self, d: Diagnostics, received_t: float | None = None) -> None:
         """A stage's drop counts by reason and in ``all`` (counts since the stage started)."""

@@ -57,6 +57,7 @@ SERIES_STYLE: dict[str, dict] = {
     "metrics/model/version": {"names": ["model version"]},
     "metrics/memory/size": {"names": ["memory points"]},
     "metrics/quarantined": {"names": ["quarantined points"], "colors": [(200, 40, 40)]},
+    "metrics/withheld": {"names": ["withheld updates"], "colors": [(120, 40, 160)]},
     "compensation/correction": {"names": ["predicted correction"]},
     "compensation/residual": {"names": ["solver residual"], "colors": [(200, 40, 40)]},
     "compensation/epistemic": {"names": ["epistemic std"], "colors": [(80, 80, 200)]},
@@ -111,10 +112,11 @@ def blueprint(reach_m: float = 3.0) -> rrb.Blueprint:
                 ),
                 rrb.Horizontal(
                     _series(
-                        "Model version, memory, quarantined points",
+                        "Model version, memory, quarantined points, withheld updates",
                         "metrics/model/**",
                         "metrics/memory/size",
                         "metrics/quarantined",
+                        "metrics/withheld",
                     ),
                     rrb.BarChartView(origin="/metrics/memory/age", name="Memory by batch age"),
                     _series("Compensation answers (mm)", "compensation/**"),

@@ -26,20 +26,24 @@ class RunCommand(Command):
         parser.add_argument("--config", required=True, help="daemon TOML config")
 
     def take_action(self, args: argparse.Namespace) -> int:
-        from stream.config import load_config
+        from stream.config import dashboard_index, load_config
         from stream.daemon import run_until_signal
 
         cfg = load_config(args.config)
         if cfg.dashboard is not None and cfg.dashboard.serve:
-            print_dashboard_url(cfg.dashboard)
+            for r in cfg.robots:
+                if "dashboard" in r.stages:
+                    print_dashboard_url(cfg.dashboard, r.name, dashboard_index(cfg, r.name))
         return run_until_signal(cfg)
 
 
-def print_dashboard_url(dc: DashboardConfig) -> None:
-    """One line on stderr with the URL that opens the live dashboard in a browser."""
+def print_dashboard_url(dc: DashboardConfig, robot: str = "", index: int = 0) -> None:
+    """One line on stderr with the URL that opens a robot's live dashboard in a browser (the
+    ``index``-th robot with a dashboard is served on the configured ports + ``index``)."""
     from stream.dashboard import viewer_url
 
-    print(f"dashboard: {viewer_url(dc.host, dc.web_port, dc.grpc_port)}", file=sys.stderr)
+    url = viewer_url(dc.host, dc.web_port + index, dc.grpc_port + index)
+    print(f"dashboard{' ' + robot if robot else ''}: {url}", file=sys.stderr)
 
 
 class ReplayCommand(Command):

@@ -6,7 +6,6 @@ import socket
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import parse_qs, urlparse
 
@@ -29,13 +28,6 @@ from stream.messages import Diagnostics, Metrics
 UR10 = RobotModel(load_description("ur10"))
 
 
-@dataclass(frozen=True, kw_only=True)
-class QuarantineMetrics(Metrics):
-    """Metrics with the learner's count of quarantined points (drawn when present)."""
-
-    quarantined: int = 0
-
-
 def metrics(v: int, **extra) -> Metrics:
     fields = dict(
         model_version=v,
@@ -50,7 +42,7 @@ def metrics(v: int, **extra) -> Metrics:
         epistemic_p90_mm=0.9 / v,
         memory_age=(20, 10, 10),
     )
-    return QuarantineMetrics(**fields, **extra) if extra else Metrics(**fields)
+    return Metrics(**fields, **extra)
 
 
 def evidential(mean: np.ndarray, scale_m: float = 1e-3) -> Evidential:
@@ -81,7 +73,7 @@ def test_rrd_holds_every_trace_on_both_timelines(tmp_path):
     rng = np.random.default_rng(0)
     for v in (1, 2, 3):
         dash.log_points(batch(4 * v, 4, rng, prediction=v > 1))
-        dash.log_metrics(metrics(v, quarantined=v - 1))
+        dash.log_metrics(metrics(v, quarantined=v - 1, withheld=v // 2))
         dash.log_diagnostics(Diagnostics(stage="window", accepted=10, dropped={"late": v}))
     reply = CompensationReply(
         model_version=3,
@@ -103,6 +95,7 @@ def test_rrd_holds_every_trace_on_both_timelines(tmp_path):
     assert list(t) == [7, 11, 15]  # the newest point seq when each update arrived
     np.testing.assert_allclose(mean[:, 0], [1.0, 0.5, 1 / 3])
     np.testing.assert_array_equal(s["/metrics/quarantined"][1][:, 0], [0, 1, 2])
+    np.testing.assert_array_equal(s["/metrics/withheld"][1][:, 0], [0, 1, 1])
     np.testing.assert_array_equal(s["/drops/window/late"][1][:, 0], [1, 2, 3])
     np.testing.assert_array_equal(s["/drops/window/all"][1][:, 0], [1, 2, 3])
     np.testing.assert_allclose(s["/compensation/correction"][1][0, 0], 0.5)
@@ -224,9 +217,9 @@ def test_robocal_run_prints_the_one_url_of_the_live_dashboard(tmp_path):
     proc = subprocess.Popen([robocal, "run", "--config", str(config)], stderr=subprocess.PIPE)
     try:
         lines = [proc.stderr.readline().decode() for _ in range(1)]
-        while not lines[-1].startswith("dashboard:") and lines[-1] and len(lines) < 50:
+        while not lines[-1].startswith("dashboard ur10:") and lines[-1] and len(lines) < 50:
             lines.append(proc.stderr.readline().decode())
-        assert lines[-1].strip() == f"dashboard: {viewer_url('127.0.0.1', web, grpc)}", lines
+        assert lines[-1].strip() == f"dashboard ur10: {viewer_url('127.0.0.1', web, grpc)}", lines
         deadline = time.monotonic() + 60.0
         while True:  # the daemon serves what the line promised
             try:
