@@ -138,13 +138,19 @@ def zenoh_config(cfg: BusConfig) -> zenoh.Config:
     return zc
 
 
+class BusUnreachableError(ConfigError):
+    """A client found none of its routers (down, not started yet, or refusing its certificate)."""
+
+
 def open_session(cfg: BusConfig) -> zenoh.Session:
-    """Open a Zenoh session configured by ``cfg``."""
+    """Open a Zenoh session configured by ``cfg`` (BusUnreachableError: a client's routers did
+    not answer; ConfigError: anything else)."""
     zc = zenoh_config(cfg)
     try:
         return zenoh.open(zc)
     except zenoh.ZError as exc:
-        raise ConfigError(f"cannot open Zenoh session ({cfg}): {exc}") from None
+        error = BusUnreachableError if cfg.mode == "client" and cfg.connect else ConfigError
+        raise error(f"cannot open Zenoh session ({cfg}): {exc}") from None
 
 
 def publisher(session: zenoh.Session, key_expr: str) -> zenoh.Publisher:

@@ -16,6 +16,7 @@ anything is still stuck. State directories are proved writable before anything s
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import signal
 import threading
@@ -29,7 +30,7 @@ import zenoh
 
 from kinematics.description import load_description
 from kinematics.model import RobotModel
-from stream.bus import open_session
+from stream.bus import BusUnreachableError, open_session
 from stream.config import DaemonConfig, RobotConfig, dashboard_index
 from stream.dashboard import Dashboard
 from stream.log import JsonLogger
@@ -72,9 +73,11 @@ class Daemon:
         #: The ``[[sources]]`` this daemon reads itself, each in its thread (started last).
         self.sources: list[SourceThread] = []
 
-    def start(self) -> Daemon:
+    def start(self, until: threading.Event | None = None) -> Daemon:
         """Check the state directories, open the session and the stages; on any failure the
-        stages already open are closed again before the error is raised."""
+        stages already open are closed again before the error is raised. With ``until``, a
+        client whose router is not reachable waits for it (``bus_unreachable`` warnings) until
+        the router answers or ``until`` is set (then nothing is started)."""
         cfg = self.cfg
         # Every robot's description first: a missing one stops the start before anything opens.
         self._descriptions = {rc.name: load_description(rc.description) for rc in cfg.robots}
@@ -86,6 +89,10 @@ class Daemon:
             check_writable(Path(cfg.recorder.path).parent, "recorder directory")
         if cfg.dashboard is not None and cfg.dashboard.rrd:
             check_writable(Path(cfg.dashboard.rrd).parent, "dashboard rrd directory")
+        if self.session is None and until is not None:
+            self.session = self._wait_for_bus(until)
+            if self.session is None:  # stopped while waiting for the router
+                return self
         try:
             self._start_stages()
         except BaseException as exc:
@@ -94,6 +101,20 @@ class Daemon:
                 raise StateDirError(f"cannot start: {describe_os_error(exc)}") from None
             raise
         return self
+
+    def _wait_for_bus(self, until: threading.Event) -> zenoh.Session | None:
+        """Open the bus, retrying every 2 s while the routers are unreachable (a router that
+        starts later, or restarts, is not a reason to exit); None once ``until`` is set."""
+        last_warning = -math.inf
+        while not until.is_set():
+            try:
+                return open_session(self.cfg.bus)
+            except BusUnreachableError as exc:
+                if time.monotonic() - last_warning >= 30.0:
+                    last_warning = time.monotonic()
+                    self.log.log("warning", "bus_unreachable", retry_s=2.0, cause=str(exc)[:300])
+            until.wait(2.0)
+        return None
 
     def _start_stages(self) -> None:
         cfg = self.cfg
@@ -303,7 +324,7 @@ def run_until_signal(cfg: DaemonConfig, logger: JsonLogger | None = None) -> int
     log = daemon.log
     code = [0]
     try:
-        daemon.start()  # a failure here has closed what it opened: one line from the CLI
+        daemon.start(until=stop)  # a failure here has closed what it opened: one line
     except BaseException:
         for sig, handler in previous.items():
             signal.signal(sig, handler)

@@ -4,10 +4,12 @@ certificate), and sources publishing with the robot, tracker and DAQ certificate
 come out for each robot and a compensation client gets answers. A robot that cannot start
 stops the daemon with exit code 2 and one line."""
 
+import io
 import json
 import signal
 import subprocess
 import sys
+import threading
 import time
 import tomllib
 from pathlib import Path
@@ -23,6 +25,7 @@ from stream.bus import BusConfig, TlsConfig, alive_stages, free_port, open_sessi
 from stream.compensation import CompensationReply, CompensationRequest
 from stream.config import config_from_dict, load_config
 from stream.daemon import Daemon
+from stream.log import JsonLogger
 from stream.messages import JointSample, TemperatureSample, TrackerSample, decode, encode, key
 from stream.router import open_router, router_config
 from stream.security import ROLES, make_line_certs
@@ -227,3 +230,30 @@ def test_robots_serving_dashboards_get_their_own_ports():
         config_from_dict(
             {**base, "dashboard": {"serve": True, "web_port": 9090, "grpc_port": 9091}}
         )
+
+
+def test_a_daemon_waits_for_a_router_that_starts_later_or_for_its_stop(tmp_path):
+    certs = tmp_path / "certs"
+    make_line_certs(certs, ("router", "learner"))
+    port = free_port()
+    text = line_toml(certs, "learner", port, ["window"]).replace("{T_W_0}", "[]")
+    cfg = config_from_dict(tomllib.loads(text.replace("T_W_0 = []\n", "")))
+    log = io.StringIO()
+    daemon, until = Daemon(cfg, logger=JsonLogger(stream=log)), threading.Event()
+    starting = threading.Thread(target=daemon.start, kwargs={"until": until})
+    starting.start()
+    deadline = time.monotonic() + 30
+    while "bus_unreachable" not in log.getvalue():
+        assert time.monotonic() < deadline and starting.is_alive()
+        time.sleep(0.1)
+    router = open_router(router_config(DEPLOY / "zenohd.json5", (f"tls/127.0.0.1:{port}",), certs))
+    try:
+        starting.join(60)
+        assert not starting.is_alive() and [st.name for st in daemon.stages] == ["window"] * 2
+    finally:
+        daemon.stop(timeout_s=10)
+        router.close()
+    idle = Daemon(cfg, logger=JsonLogger(stream=io.StringIO()))  # no router, then SIGTERM
+    stop = threading.Event()
+    threading.Timer(1.0, stop.set).start()
+    assert idle.start(until=stop).session is None and idle.stages == []
