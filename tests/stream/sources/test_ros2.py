@@ -150,3 +150,22 @@ def test_joint_names_must_match_the_description(bus):
     cfg = Ros2SourceConfig(joint_names=("a", "b"))
     with pytest.raises(ConfigError, match="lists 2 joints, robot 'fanuc_m900ib700' has 6"):
         Ros2Source(session, CELL, ROBOT, cfg, n_joints=6)
+
+
+def test_a_router_that_is_not_up_yet_is_waited_for(bus):
+    session, collector = bus
+    port = free_port()
+    src = start(session, port, reconnect_s=0.2)
+    try:
+        assert wait_for(lambda: src.source.connect_attempts >= 2)  # no router: it keeps trying
+        assert "connection" in src.source.counter.refused
+        cell = RosCell(port)
+        try:
+            time.sleep(1.0)
+            cell.publish("/joint_states", JOINT_TYPE, cell.joint_state(1.0, NAMES, [0.2] * 6))
+            joints = collector.wait("joints", 1)
+        finally:
+            cell.close()
+    finally:
+        src.close()
+    assert [j.q for j in joints] == [(0.2,) * 6]
