@@ -177,3 +177,15 @@ def test_unreadable_certificate_is_one_clear_error(tmp_path):
     tls = TlsConfig(ca=str(tmp_path / "ca.pem"), cert="x.pem", key="x.key")
     with pytest.raises(ConfigError, match=r"bus\.tls\.ca: cannot read"):
         open_session(BusConfig.loopback(free_port(), listen=False, tls=tls))
+
+
+def test_robocal_certs_writes_a_line_and_refuses_bad_roles_in_one_line(tmp_path, capsys):
+    from stream.cli import main
+
+    out = tmp_path / "line"
+    assert main(["certs", "--out", str(out), "--roles", "learner,router", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert set(result["roles"]) == {"learner", "router"} and Path(result["ca"]).exists()
+    assert main(["certs", "--out", str(out), "--roles", "learner,root"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and "bad: ['root']" in err[0]
