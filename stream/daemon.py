@@ -266,9 +266,9 @@ class Daemon:
             keep = 0.0 if stage.name == "recorder" else reserve
             left = max(deadline - time.monotonic() - keep, 0.5)
             if isinstance(stage, WindowStage) and stage.failure is None:
-                try:
-                    stage.drain(left)
-                    stage.end_of_stream(timeout_s=left)
+                try:  # a backlog past the timeout: the partial batch stays in the window state
+                    if stage.drain(left):
+                        stage.end_of_stream(timeout_s=max(deadline - time.monotonic() - keep, 0.5))
                 except Exception as exc:  # noqa: BLE001 - reported, the others still close
                     failures[f"{stage.name}/{stage.robot}"] = exc
             error = stage.close(timeout_s=max(deadline - time.monotonic() - keep, 0.5))
