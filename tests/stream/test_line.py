@@ -7,11 +7,13 @@ stops the daemon with exit code 2 and one line."""
 import io
 import json
 import signal
+import socket
 import subprocess
 import sys
 import threading
 import time
 import tomllib
+import urllib.request
 from pathlib import Path
 
 import pytest
@@ -215,17 +217,36 @@ def test_a_missing_description_is_refused_before_anything_opens(tmp_path):
     assert daemon.session is None and daemon.stages == []
 
 
-def test_robots_serving_dashboards_get_their_own_ports():
-    base = {
-        "robot": [
-            {"name": r, "description": "ur10", "stages": ["dashboard"]} for r in ("a", "b", "c")
-        ],
-        "dashboard": {"serve": True, "web_port": 9090, "grpc_port": 9876},
-    }
-    cfg = config_from_dict(base)
-    from stream.config import dashboard_index
+def _free_pair() -> int:
+    """A port p with p and p + 1 free on 127.0.0.1 right now."""
+    for _ in range(100):
+        p = free_port()
+        with socket.socket() as s:
+            try:
+                s.bind(("127.0.0.1", p + 1))
+                return p
+            except OSError:
+                continue
+    raise RuntimeError("no two adjacent free ports")
 
-    assert [dashboard_index(cfg, r) for r in ("a", "b", "c")] == [0, 1, 2]
+
+def test_robots_serving_dashboards_get_their_own_ports():
+    web, grpc = _free_pair(), _free_pair()
+    base = {
+        "cell": "c",
+        "bus": {"listen": [f"tcp/127.0.0.1:{free_port()}"], "multicast_scouting": False},
+        "robot": [{"name": r, "description": "ur10", "stages": ["dashboard"]} for r in ("a", "b")],
+        "dashboard": {"serve": True, "web_port": web, "grpc_port": grpc},
+    }
+    log = io.StringIO()
+    daemon = Daemon(config_from_dict(base), logger=JsonLogger(stream=log)).start()
+    try:  # both viewers up: before, the second robot's server found the port taken
+        for port in (web, web + 1):
+            assert urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=10).status == 200
+    finally:
+        daemon.stop(timeout_s=10)
+    urls = [json.loads(x)["url"] for x in log.getvalue().splitlines() if "dashboard_served" in x]
+    assert len(urls) == 2 and f"%3A{grpc + 1}%2F" in urls[1]
     with pytest.raises(ConfigError, match="overlap"):
         config_from_dict(
             {**base, "dashboard": {"serve": True, "web_port": 9090, "grpc_port": 9091}}
