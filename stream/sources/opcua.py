@@ -25,7 +25,7 @@ from stream.sources._base import Source
 from stream.sources.config import OpcUaSourceConfig
 
 #: What a dropped or restarting server raises on a request.
-CONNECTION_ERRORS = (OSError, TimeoutError, asyncio.TimeoutError, ua.UaError, ConnectionError)
+CONNECTION_ERRORS = (OSError, EOFError, TimeoutError, asyncio.TimeoutError, ua.UaError)
 
 
 def check_channels(cfg: OpcUaSourceConfig, declared: tuple[str, ...]) -> None:
@@ -101,7 +101,7 @@ class OpcUaSource(Source):
         client = Client(url=self.cfg.url, timeout=self.cfg.timeout_s)
         try:
             await asyncio.wait_for(client.connect(), self.cfg.timeout_s)
-        except (*CONNECTION_ERRORS, asyncio.CancelledError) as exc:
+        except CONNECTION_ERRORS as exc:
             self._lost(str(exc) or type(exc).__name__)
             await self._close(client)
             return None
