@@ -135,6 +135,8 @@ def zenoh_config(cfg: BusConfig) -> zenoh.Config:
             "verify_name_on_connect": True,
         }
         zc.insert_json5("transport/link/tls", json.dumps(tls))
+        # Shared memory would hand payloads to local processes beside the encrypted link.
+        zc.insert_json5("transport/shared_memory/enabled", "false")
     return zc
 
 

@@ -189,3 +189,35 @@ def test_robocal_certs_writes_a_line_and_refuses_bad_roles_in_one_line(tmp_path,
     assert main(["certs", "--out", str(out), "--roles", "learner,root"]) == 2
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 1 and "bad: ['root']" in err[0]
+
+
+def test_a_zenoh_config_file_joins_the_secure_bus(line, tmp_path):
+    session, port, certs = line
+    cfg = tmp_path / "learner.json5"
+    tls = {
+        "root_ca_certificate": str(certs / "ca.pem"),
+        "connect_certificate": str(certs / "learner.pem"),
+        "connect_private_key": str(certs / "learner.key"),
+        "enable_mtls": True,
+    }
+    link = {"tls": tls}
+    cfg.write_text(
+        json.dumps(
+            {
+                "mode": "client",
+                "connect": {"endpoints": [f"tls/127.0.0.1:{port}"]},
+                "scouting": {"multicast": {"enabled": False}},
+                "transport": {"link": link},
+            }
+        )
+    )
+    learner = open_session(BusConfig(zenoh_config=str(cfg)))
+    try:
+        got = _received(
+            session("dashboard"), "robocal/c1/r1/model", {"learner": learner}, "learner"
+        )
+    finally:
+        learner.close()
+    assert got == ["learner"]
+    with pytest.raises(ConfigError, match="bus.zenoh_config"):
+        open_session(BusConfig(zenoh_config=str(tmp_path / "missing.json5")))
