@@ -10,6 +10,7 @@ import json
 import os
 import signal
 import threading
+from collections.abc import Callable
 from pathlib import Path
 
 import zenoh
@@ -51,7 +52,7 @@ def open_router(zc: zenoh.Config) -> zenoh.Session:
         raise ConfigError(f"cannot start the router: {exc}") from None
 
 
-def run_router(zc: zenoh.Config, on_start=None) -> int:
+def run_router(zc: zenoh.Config, on_start: Callable[[list[str]], None] | None = None) -> int:
     """Run the router until SIGTERM or SIGINT; 0. ``on_start(endpoints)`` once it listens."""
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
