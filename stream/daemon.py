@@ -148,6 +148,26 @@ class Daemon:
             stages=[s.name for s in self.stages],
             recordings=self.recordings,
         )
+        self._check_bus_role()
+
+    def _check_bus_role(self) -> None:
+        """Warn when the TLS certificate's role may not publish what these stages publish:
+        the router would drop it without a word (deploy/zenohd.json5)."""
+        if self.cfg.bus.tls is None:
+            return
+        from stream.security import certificate_name
+
+        name = certificate_name(self.cfg.bus.tls.cert)
+        learning = {"window", "learner", "compensation"} & {s.name for s in self.stages}
+        if learning and name.split("-")[0] != "learner":
+            self.log.log(
+                "warning",
+                "bus_role",
+                certificate=name,
+                stages=sorted(learning),
+                detail="only the learner role may publish points, batches and models and "
+                "answer compensate: the router drops them from this certificate",
+            )
 
     def _start_robot(self, rc: RobotConfig) -> None:
         cfg, s = self.cfg, self.session

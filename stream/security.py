@@ -98,6 +98,16 @@ def make_line_certs(
     return LineCerts(ca_pem, ca_key_path, written)
 
 
+def certificate_name(path: str | Path) -> str:
+    """The common name of a PEM certificate: its role name on the line's bus."""
+    from cryptography import x509
+    from cryptography.x509.oid import NameOID
+
+    cert = x509.load_pem_x509_certificate(Path(path).read_bytes())
+    names = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)
+    return str(names[0].value) if names else ""
+
+
 def _new_key():
     from cryptography.hazmat.primitives.asymmetric import ec
 

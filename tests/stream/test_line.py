@@ -255,10 +255,14 @@ def test_robots_serving_dashboards_get_their_own_ports():
 
 def test_a_daemon_waits_for_a_router_that_starts_later_or_for_its_stop(tmp_path):
     certs = tmp_path / "certs"
-    make_line_certs(certs, ("router", "learner"))
+    make_line_certs(certs, ("router", "learner", "tracker"))
     port = free_port()
-    text = line_toml(certs, "learner", port, ["window"]).replace("{T_W_0}", "[]")
-    cfg = config_from_dict(tomllib.loads(text.replace("T_W_0 = []\n", "")))
+
+    def config(role: str):
+        text = line_toml(certs, role, port, ["window"]).replace("{T_W_0}", "[]")
+        return config_from_dict(tomllib.loads(text.replace("T_W_0 = []\n", "")))
+
+    cfg = config("learner")
     log = io.StringIO()
     daemon, until = Daemon(cfg, logger=JsonLogger(stream=log)), threading.Event()
     starting = threading.Thread(target=daemon.start, kwargs={"until": until})
@@ -271,6 +275,10 @@ def test_a_daemon_waits_for_a_router_that_starts_later_or_for_its_stop(tmp_path)
     try:
         starting.join(60)
         assert not starting.is_alive() and [st.name for st in daemon.stages] == ["window"] * 2
+        assert "bus_role" not in log.getvalue()
+        wrong_log = io.StringIO()  # a window stage under the tracker's certificate: warned
+        Daemon(config("tracker"), logger=JsonLogger(stream=wrong_log)).start().stop(10)
+        assert '"event":"bus_role","certificate":"tracker"' in wrong_log.getvalue()
     finally:
         daemon.stop(timeout_s=10)
         router.close()
