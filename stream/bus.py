@@ -156,9 +156,12 @@ def open_session(cfg: BusConfig) -> zenoh.Session:
 
 
 def publisher(session: zenoh.Session, key_expr: str) -> zenoh.Publisher:
-    """A reliable publisher that blocks rather than drops when the network is congested."""
+    """A reliable publisher that blocks rather than drops when the network is congested; its
+    samples name their encoding (JSON messages; a model is a framed binary snapshot)."""
+    E = zenoh.Encoding
     return session.declare_publisher(
         key_expr,
+        encoding=E.APPLICATION_OCTET_STREAM if key_expr.endswith("/model") else E.APPLICATION_JSON,
         congestion_control=zenoh.CongestionControl.BLOCK,
         reliability=zenoh.Reliability.RELIABLE,
     )

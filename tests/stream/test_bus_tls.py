@@ -11,7 +11,7 @@ import pytest
 import zenoh
 
 from kinematics.errors import ConfigError
-from stream.bus import BusConfig, TlsConfig, free_port, open_session
+from stream.bus import BusConfig, TlsConfig, free_port, open_session, publisher
 from stream.router import open_router, router_config
 from stream.security import ROLES, make_line_certs, parse_roles
 
@@ -221,3 +221,22 @@ def test_a_zenoh_config_file_joins_the_secure_bus(line, tmp_path):
     assert got == ["learner"]
     with pytest.raises(ConfigError, match="bus.zenoh_config"):
         open_session(BusConfig(zenoh_config=str(tmp_path / "missing.json5")))
+
+
+def test_payloads_name_their_encoding_across_the_router(line):
+    session, _, _ = line
+    got = {}
+    sub = session("dashboard").declare_subscriber(
+        "robocal/c1/r1/*", lambda s: got.setdefault(str(s.key_expr), str(s.encoding))
+    )
+    time.sleep(SETTLE_S)
+    publisher(session("tracker"), "robocal/c1/r1/tracker").put(b"{}")
+    publisher(session("learner"), "robocal/c1/r1/model").put(b"\0")
+    deadline = time.monotonic() + 10
+    while len(got) < 2 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    sub.undeclare()
+    assert got == {
+        "robocal/c1/r1/tracker": "application/json",
+        "robocal/c1/r1/model": "application/octet-stream",
+    }
