@@ -128,6 +128,30 @@ def test_only_listed_clients_query_compensate(line):
     queryable.undeclare()
 
 
+def test_only_the_learner_answers_compensate_and_model_queries(line):
+    """A rogue service (any other role) cannot answer with forged corrections or models."""
+    session, _, _ = line
+    rogues = [session(r) for r in ("robot", "tracker", "daq", "dashboard", "compensation")]
+    learner = session("learner")
+    declared = []
+    for stream in ("compensate", "model"):
+        k = f"robocal/c1/r1/{stream}"
+        for s in rogues:
+            declared.append(s.declare_queryable(k, lambda q, k=k: q.reply(k, b"forged")))
+        declared.append(learner.declare_queryable(k, lambda q, k=k: q.reply(k, b"genuine")))
+    time.sleep(SETTLE_S)
+    for stream, asker in (("compensate", "compensation"), ("model", "dashboard")):
+        replies = session(asker).get(
+            f"robocal/c1/r1/{stream}",
+            target=zenoh.QueryTarget.ALL,
+            consolidation=zenoh.ConsolidationMode.NONE,  # every answer, not one per key
+            timeout=2.0,
+        )
+        assert [r.ok.payload.to_bytes() for r in replies if r.ok is not None] == [b"genuine"]
+    for q in declared:
+        q.undeclare()
+
+
 def test_certs_are_signed_by_one_ca_with_owner_only_keys(tmp_path):
     from cryptography import x509
 
