@@ -16,6 +16,7 @@ _ALL_ROLES = "robot,tracker,daq,learner,dashboard,compensation,router"
 
 class CertsCommand(Command):
     name = "certs"
+    uses_torch = False
     help = "make a line's CA and one certificate per role for the TLS bus (keys 0600)"
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
@@ -56,6 +57,7 @@ class CertsCommand(Command):
 
 class RouterCommand(Command):
     name = "router"
+    uses_torch = False
     help = "run the line's Zenoh router (TLS, access control) until SIGTERM/SIGINT"
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
