@@ -12,8 +12,10 @@ FANUC = load_description("fanuc_m900ib700")
 
 
 def test_paper_nominal_and_one_scenario_per_effect():
-    assert {"paper", "nominal", *EFFECTS} == set(SCENARIOS) == set(list_scenarios())
+    assert {"paper", "nominal", "iso9283", *EFFECTS} == set(SCENARIOS) == set(list_scenarios())
     assert set(SCENARIOS["paper"].effects) == set(EFFECTS)
+    assert SCENARIOS["iso9283"].effects == SCENARIOS["paper"].effects
+    assert SCENARIOS["iso9283"].program.kind == "iso9283"
     assert SCENARIOS["nominal"].effects == () and not SCENARIOS["nominal"].noise
     for name in EFFECTS:
         assert SCENARIOS[name].effects == (name,)
