@@ -255,13 +255,15 @@ def save_plot(report: IsoReport, path: str | Path) -> Path:
         if all(pr.after is not None for pr in report.poses):
             after = [getattr(pr.after, key) for pr in report.poses]
             ax.bar(x + 0.2, after, 0.4, label="after", color="tab:blue")
+            if min(before + after) > 0:
+                ax.set_yscale("log")  # millimetres before, micrometres after: both readable
         if len(names) <= 12:
             ax.set_xticks(x, names)
         else:  # many poses (a dataset's own repeats): their order of first appearance
             ax.set_xlabel("pose (order of first appearance)")
         ax.set_ylabel(f"{title} (mm)")
         ax.set_title(f"ISO 9283 {title}")
-        ax.legend()
+        ax.legend(loc="best", fontsize="small", framealpha=0.6)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     return save_figure(fig, path)
 
