@@ -1,9 +1,12 @@
 """Zenoh sessions from a frozen config, queue-fed workers and liveliness tokens.
 
 By default a session is an embedded peer (no router needed on one machine); ``mode="client"``
-with ``connect`` endpoints talks through routers (deploy/zenohd.json5). Zenoh callbacks only
-put ``Received`` items on a queue: a worker thread does the work, so a callback never blocks
-the Zenoh runtime and never calls back into Zenoh.
+with ``connect`` endpoints talks through routers (deploy/zenohd.json5); a client whose router
+is killed and restarted reconnects by itself (zenoh's default connect retry; its subscriptions
+come back, what was published meanwhile is lost and counted by the window as ``missed``:
+tests/stream/test_faults.py). Zenoh callbacks only put ``Received`` items on a queue: a worker
+thread does the work, so a callback never blocks the Zenoh runtime and never calls back into
+Zenoh.
 """
 
 from __future__ import annotations
