@@ -66,7 +66,16 @@ SERIES_STYLE: dict[str, dict] = {
 
 
 def _series(name: str, *contents: str) -> rrb.TimeSeriesView:
-    return rrb.TimeSeriesView(origin="/", contents=list(contents), name=name)
+    """A plot of ``contents`` over the whole timeline (it would scroll with the time cursor)."""
+    everything = rrb.TimeRange(
+        start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite()
+    )
+    return rrb.TimeSeriesView(
+        origin="/",
+        contents=list(contents),
+        name=name,
+        axis_x=rrb.TimeAxis(link="Independent", view_range=everything),
+    )
 
 
 def blueprint(reach_m: float = 3.0) -> rrb.Blueprint:

@@ -80,8 +80,9 @@ def open_viewer(
     until: Callable[[ViewerCheck], bool] = shows_data,
     viewport: tuple[int, int] = (1600, 1000),
     settle_s: float = 0.0,
+    poll_s: float = 1.0,
 ) -> ViewerCheck:
-    """Open ``url`` headless and screenshot it every second until ``until(check)`` (by default:
+    """Open ``url`` headless and screenshot it every ``poll_s`` until ``until(check)`` (by default:
     the recording's data is on screen; then ``seconds_to_data`` is set) or ``timeout_s``
     passes; ``settle_s`` more seconds before the last screenshot (a finished picture).
     Colours are counted below the viewer's top bar (its warning label is orange)."""
@@ -105,7 +106,7 @@ def open_viewer(
             start = time.monotonic()
             page.goto(url)
             while time.monotonic() - start < timeout_s:
-                page.wait_for_timeout(1000)
+                page.wait_for_timeout(poll_s * 1000)
                 check.screenshot = page.screenshot()
                 img = pixels(check.screenshot)[TOP_BAR_PX:]
                 check.robot_pixels = colour_pixels(img, LINK_RGB, tolerance=40)
