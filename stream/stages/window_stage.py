@@ -68,7 +68,7 @@ class WindowStage(Stage):
             )  # fmt: skip
         self.points = 0
         self.batches = 0
-        self._last_seq: dict[str, int] = {}
+        self._last_seq: dict[str, tuple[int, float]] = {}
         self._emit([], restored)
         for stream in ("joints", "tracker", "temperature"):
             self.subscribe(stream)
@@ -109,18 +109,22 @@ class WindowStage(Stage):
     def handle(self, item: Received) -> None:
         stream = split_key(item.key)[2]
         sample = decode(item.payload, STREAM_TYPES[stream])
-        self._count_missed(stream, sample.seq)
+        self._count_missed(stream, sample.seq, sample.t)
         self._emit(self.joiner.push(sample, now=item.received_t))
 
-    def _count_missed(self, stream: str, seq: int) -> None:
-        """Count the samples a gap in a source's numbering says never arrived (``missed``)."""
+    def _count_missed(self, stream: str, seq: int, t: float) -> None:
+        """Count the samples a gap in a source's numbering says never arrived (``missed``).
+        Only a sample later in time moves the count on (a forged or stale number with an earlier
+        time counts nothing); a lower number later in time is a restarted source."""
         last = self._last_seq.get(stream)
-        self._last_seq[stream] = seq
-        if last is not None and 1 < seq - last <= MAX_COUNTED_GAP:
-            self.counter.drop("missed", seq - last - 1)
+        if last is not None and t <= last[1]:
+            return
+        self._last_seq[stream] = (seq, t)
+        if last is not None and 1 < seq - last[0] <= MAX_COUNTED_GAP:
+            self.counter.drop("missed", seq - last[0] - 1)
             self.log.limited(
                 "samples_missed", key=f"missed:{stream}", robot=self.robot, stream=stream,
-                missed=seq - last - 1, missed_total=self.counter.dropped["missed"],
+                missed=seq - last[0] - 1, missed_total=self.counter.dropped["missed"],
             )  # fmt: skip
 
     def _emit(self, points: list, batches: list[Batch] | None = None) -> None:
