@@ -24,12 +24,24 @@ class RunCommand(Command):
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("--config", required=True, help="daemon TOML config")
+        parser.add_argument(
+            "--speed",
+            type=float,
+            default=None,
+            help="x recorded time of the config's dataset and sim sources (0: as fast as possible)",
+        )
 
     def take_action(self, args: argparse.Namespace) -> int:
         from stream.config import dashboard_index, load_config
         from stream.daemon import run_until_signal
 
         cfg = load_config(args.config)
+        if args.speed is not None:
+            from dataclasses import replace
+
+            from stream.sources.config import with_speed
+
+            cfg = replace(cfg, sources=with_speed(cfg.sources, args.speed))
         if cfg.dashboard is not None and cfg.dashboard.serve:
             for r in cfg.robots:
                 if "dashboard" in r.stages:

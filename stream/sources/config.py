@@ -9,7 +9,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from kinematics.errors import ConfigError
@@ -173,3 +173,16 @@ def source_class(raw: Any) -> type:
     if kind not in KINDS:
         raise ConfigError(f"[[sources]] kind must be one of {sorted(KINDS)}, got {kind!r}")
     return KINDS[kind]
+
+
+def with_speed(sources: tuple[SourceConfig, ...], speed: float) -> tuple[SourceConfig, ...]:
+    """The sources with ``speed`` (x recorded time, 0: as fast as possible) for those that replay
+    (dataset, sim); ConfigError (one line) for a negative speed.
+
+    >>> with_speed((DatasetSourceConfig(path="a.parquet"),), 10.0)[0].speed
+    10.0
+    """
+    return tuple(
+        replace(s, speed=speed) if isinstance(s, DatasetSourceConfig | SimSourceConfig) else s
+        for s in sources
+    )

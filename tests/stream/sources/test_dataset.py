@@ -127,9 +127,17 @@ def test_robocal_run_refuses_a_bad_source_in_one_line(tmp_path):
         f'[[sources]]\nkind = "dataset"\npath = "{tmp_path}/nowhere.parquet"\n'
     )
     robocal = str(Path(sys.executable).with_name("robocal"))
-    for path, reason in ((bad, "url must look like opc.tcp://"), (missing, "nowhere.parquet")):
+    cases = (
+        (bad, [], "url must look like opc.tcp://"),
+        (missing, [], "nowhere.parquet"),
+        (missing, ["--speed", "-1"], "speed must be >= 0"),
+    )
+    for path, extra, reason in cases:
         proc = subprocess.run(
-            [robocal, "run", "--config", str(path)], capture_output=True, text=True, timeout=120
+            [robocal, "run", "--config", str(path), *extra],
+            capture_output=True,
+            text=True,
+            timeout=120,
         )
         assert proc.returncode == 2, proc.stderr
         lines = [x for x in proc.stderr.splitlines() if not x.startswith("{")]
