@@ -141,7 +141,7 @@ def run_cell(tmp_path, state: Path, policy: str, fault, recover=None):
         if recover is None:
             code = proc.wait(60)
         else:
-            time.sleep(3.0)  # the daemon waits, its queues fill
+            time.sleep(1.5)  # the daemon waits, its queues fill
             assert proc.poll() is None, "the daemon ended although told to wait"
             recover(state)
             marks["recovered"] = time.monotonic()

@@ -88,7 +88,7 @@ def test_kill_9_during_the_first_training_loses_no_accepted_point(tmp_path):
             client.declare_subscriber(key("plant", robot, "batches"), lambda s: batches.append(1)),
             client.declare_subscriber(key("plant", robot, "model"), lambda s: models.append(1)),
         ]
-        source = SimCellSource(client, "plant", robot, ds, StreamingConfig(period_s=1.0), speed=8)
+        source = SimCellSource(client, "plant", robot, ds, StreamingConfig(period_s=1.0), speed=20)
         feeder = threading.Thread(target=source.start)
         feeder.start()
         log = AcceptedLog(state / f"{robot}.checkpoint.accepted")
