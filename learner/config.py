@@ -116,20 +116,22 @@ class QuarantineConfig:
     """Defence against poisoned measurements (:mod:`learner.quarantine`). A new point is
     quarantined — never trained on, held out or kept in memory — when its residual against the
     published model lies more than ``interval_threshold`` predictive (Student-t) scales from the
-    prediction in some component AND more than ``threshold`` robust units (normal-scaled MADs,
+    prediction in some component, more than ``threshold`` robust units (normal-scaled MADs,
     norm over the six components) from its neighbours' residuals (the ``history`` latest
-    accepted points and its own batch). Before the first model the labels are compared with
-    each other against ``warmup_threshold``. ``release_after`` consecutive quarantined points
-    are taken as a lasting change of the cell, not a fault: the quarantine lets the shift
-    through and follows it. An update whose published model's held-out position error exceeds
-    the last published one's by more than ``publish_tolerance`` (relative) is withheld
-    (``inf`` turns the gate off); the gate waits for ``gate_min_points`` held-out points.
-    ``enabled`` false turns the quarantine off (the gate stays). Thresholds from the clean and
-    poisoned streams of BENCHMARKS.md, "No poisoning"."""
+    accepted points and its own batch), AND its label more than ``label_threshold`` such units
+    from their labels. Before the first model the label alone is judged, against
+    ``warmup_threshold``. ``release_after`` consecutive quarantined points are taken as a
+    lasting change of the cell, not a fault: the quarantine lets the shift through and follows
+    it. An update whose published model's held-out position error exceeds the last published
+    one's by more than ``publish_tolerance`` (relative) is withheld (``inf`` turns the gate
+    off); the gate waits for ``gate_min_points`` held-out points. ``enabled`` false turns the
+    quarantine off (the gate stays). Thresholds from the clean and poisoned streams of
+    BENCHMARKS.md, "No poisoning"."""
 
     enabled: bool = True
     threshold: float = 25.0
     interval_threshold: float = 4.0
+    label_threshold: float = 10.0
     warmup_threshold: float = 100.0
     history: int = 500
     release_after: int = 100
@@ -141,7 +143,7 @@ class QuarantineConfig:
             isinstance(self.enabled, bool),
             f"quarantine.enabled must be a bool, got {self.enabled!r}",
         )
-        for key in ("threshold", "interval_threshold", "warmup_threshold"):
+        for key in ("threshold", "interval_threshold", "label_threshold", "warmup_threshold"):
             value = getattr(self, key)
             _check(
                 isinstance(value, int | float) and value > 0,

@@ -123,7 +123,7 @@ class ContinualLearner:
         """Which new points pass the quarantine (bool per row); counted in :attr:`quarantine`."""
         X, Y = self._check(X, Y)
         r, z = model_residuals(self.model, X, Y)
-        accepted, self.quarantine = screen(r, z, self.quarantine, self.cfg.quarantine)
+        accepted, self.quarantine = screen(Y, r, z, self.quarantine, self.cfg.quarantine)
         return accepted
 
     def initialize(self, X: np.ndarray, Y: np.ndarray, screened: bool = False) -> UpdateMetrics:

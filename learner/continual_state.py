@@ -30,7 +30,15 @@ def state_to_bytes(state: dict) -> bytes:
         "trained": state["trained"].hex(),
         **{k: state[k] for k in ("n_withheld", "quarantine_meta") if k in state},
     }
-    keys = ("memory_x", "memory_y", "holdout_x", "holdout_y", "aci_log_scale", "quarantine_history")
+    keys = (
+        "memory_x",
+        "memory_y",
+        "holdout_x",
+        "holdout_y",
+        "aci_log_scale",
+        "quarantine_labels",
+        "quarantine_residuals",
+    )
     arrays = {k: np.ascontiguousarray(state[k]) for k in keys if k in state}
     return np_save(arrays, metadata={"robocal": json.dumps(meta)})
 

@@ -1,43 +1,49 @@
 """Quarantine of poisoned measurements: a point far outside the model's interval and its
 neighbours' is not learned.
 
-A bumped tracker or a swapped reflector moves the measured pose by tens of mm at once, far
-more than a robot's own error changes from one point to the next; a genuine new effect (a
-thermal drift, a region the model has not seen) moves the residuals of the new points alike,
-or arrives where the model says it does not know. So a new point is quarantined when both
+A bumped tracker or a swapped reflector moves the measured pose by tens of mm at once, more
+than the robot's own error varies and far more than that error changes from one point to the
+next; a genuine new effect (a thermal drift, a region the model has not seen) moves the
+residuals of the new points alike, stays within what the robot's error does, or arrives where
+the model says it does not know. So a new point is quarantined when all of
 
 - its residual against the published model lies more than ``interval_threshold`` Student-t
   scales from the prediction in some component: far outside the model's predictive
   interval (where the model says it does not know, its interval is wide and the point
-  passes), and
+  passes);
 - its residual lies far from its neighbours' residuals: per component, the distance to their
   median in units of their MAD (normal-scaled), the Euclidean norm over components above
   ``threshold``. The neighbours are the latest ``history`` accepted points and the point's
-  own batch, their residuals taken when each arrived.
+  own batch, their residuals taken when each arrived;
+- its label (the measured pose error against the nominal model) lies more than
+  ``label_threshold`` such units from its neighbours' labels: a measurement the robot's own
+  error does not explain. A model that extrapolates badly in a new region produces large
+  residuals on points whose labels are ordinary; those pass.
 
 Because the neighbours are accepted points, a burst does not become its own reference;
-because their median follows what keeps arriving, a drift does. The neighbour scale is the
-spread of the robot's own residuals in metres and radians, not the model's scale, which
-widens and narrows with the adaptive interval. Before the first model there is no
-prediction: each label is compared with the other labels in the same way against
-``warmup_threshold``, which catches only gross outliers.
+because their median follows what keeps arriving, a drift does. The neighbour scales are the
+spread of the robot's own residuals and errors in metres and radians, not the model's scale,
+which widens and narrows with the adaptive interval. Before the first model there is no
+prediction: the label alone is judged, against ``warmup_threshold``, which catches only gross
+outliers.
 
 A shift that lasts ``release_after`` consecutive points is a change of the cell (a moved
 tracker, a crash that bent a link), not a fault: the quarantine releases it, forgets the old
-reference and follows.
+neighbours and follows.
 
 >>> import numpy as np
->>> r = np.random.default_rng(0).normal(scale=1e-4, size=(40, 6))  # residuals, m and rad
->>> r[5, :3] += 0.02  # one point 20 mm off
->>> z = r / 1e-4  # standardized by the model's scale
->>> accepted, state = screen(r, z, QuarantineState.empty(), QuarantineConfig())
+>>> rng = np.random.default_rng(0)
+>>> y = rng.normal(scale=1e-3, size=(40, 6))  # labels: the robot's error, m and rad
+>>> r = rng.normal(scale=1e-4, size=(40, 6))  # residuals against the model
+>>> y[5, :3] += 0.02; r[5, :3] += 0.02  # one point 20 mm off
+>>> accepted, state = screen(y, r, r / 1e-4, QuarantineState.empty(), QuarantineConfig())
 >>> np.flatnonzero(~accepted).tolist(), state.quarantined
 ([5], 1)
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -50,26 +56,26 @@ MAD_TO_STD = 1.4826
 
 @dataclass(frozen=True, kw_only=True)
 class QuarantineState:
-    """What the quarantine remembers: the residuals of the latest accepted points (``history``,
-    (H, 6), m and rad), whether they are labels (before the first model) or model residuals,
-    the current run of consecutive quarantined points and the cumulative counts."""
+    """What the quarantine remembers of the latest accepted points: their ``labels`` and
+    ``residuals`` ((H, 6), m and rad; residuals only from the first model on), the current run
+    of consecutive quarantined points and the cumulative counts."""
 
-    history: np.ndarray
-    labels: bool = True
+    labels: np.ndarray
+    residuals: np.ndarray
     run: int = 0
     quarantined: int = 0
     released: int = 0
 
     @staticmethod
     def empty() -> QuarantineState:
-        return QuarantineState(history=np.empty((0, 6)))
+        return QuarantineState(labels=np.empty((0, 6)), residuals=np.empty((0, 6)))
 
     def to_dict(self) -> dict:
         """Arrays and counters for a checkpoint (see :func:`state_from_dict`)."""
         return {
-            "quarantine_history": self.history.copy(),
+            "quarantine_labels": self.labels.copy(),
+            "quarantine_residuals": self.residuals.copy(),
             "quarantine_meta": {
-                "labels": self.labels,
                 "run": self.run,
                 "quarantined": self.quarantined,
                 "released": self.released,
@@ -80,13 +86,12 @@ class QuarantineState:
 def state_from_dict(d: dict) -> QuarantineState:
     """Inverse of :meth:`QuarantineState.to_dict`; an empty state when the keys are absent
     (checkpoints written before the quarantine existed)."""
-    if "quarantine_history" not in d:
+    if "quarantine_labels" not in d:
         return QuarantineState.empty()
     meta = d.get("quarantine_meta", {})
-    history = np.asarray(d["quarantine_history"], dtype=float).reshape(-1, 6)
     return QuarantineState(
-        history=history,
-        labels=bool(meta.get("labels", True)),
+        labels=np.asarray(d["quarantine_labels"], dtype=float).reshape(-1, 6),
+        residuals=np.asarray(d["quarantine_residuals"], dtype=float).reshape(-1, 6),
         run=int(meta.get("run", 0)),
         quarantined=int(meta.get("quarantined", 0)),
         released=int(meta.get("released", 0)),
@@ -102,52 +107,60 @@ def robust_distance(r: np.ndarray, reference: np.ndarray) -> np.ndarray:
 
 
 def screen(
-    r: np.ndarray, z: np.ndarray | None, state: QuarantineState, cfg: QuarantineConfig
+    y: np.ndarray,
+    r: np.ndarray | None,
+    z: np.ndarray | None,
+    state: QuarantineState,
+    cfg: QuarantineConfig,
 ) -> tuple[np.ndarray, QuarantineState]:
-    """Which of the new points are accepted (bool per row), and the state after. ``r`` are
-    their residuals (N, 6) in arrival order, ``z`` the same standardized by the model's
-    predictive scale; ``z`` None means there is no model yet and ``r`` are the labels.
-    Accepted points join the history (the newest ``cfg.history``); the history is forgotten
-    when the kind of ``r`` changes (the first model) or a shift is released."""
-    r = np.asarray(r, dtype=float)
-    labels = z is None
-    if not cfg.enabled or len(r) == 0:
-        return np.ones(len(r), dtype=bool), state
-    history = state.history if state.labels == labels else np.empty((0, 6))
-    distance = robust_distance(r, np.concatenate([history, r]))
-    if labels:
-        far = distance > cfg.warmup_threshold
+    """Which of the new points are accepted (bool per row), and the state after. ``y`` are
+    their labels (N, 6) in arrival order, ``r`` their residuals against the published model
+    and ``z`` the same standardized by its predictive scale; both None before the first model.
+    Accepted points join the neighbours (the newest ``cfg.history``); a released shift
+    forgets them."""
+    y = np.asarray(y, dtype=float)
+    if not cfg.enabled or len(y) == 0:
+        return np.ones(len(y), dtype=bool), state
+    labels, residuals = state.labels, state.residuals
+    label_far = robust_distance(y, np.concatenate([labels, y]))
+    if r is None or z is None:
+        far = label_far > cfg.warmup_threshold
     else:
-        far = (distance > cfg.threshold) & (np.abs(z).max(axis=1) > cfg.interval_threshold)
+        far = (label_far > cfg.label_threshold) & (np.abs(z).max(axis=1) > cfg.interval_threshold)
+        far[far] = robust_distance(r, np.concatenate([residuals, r]))[far] > cfg.threshold
     accepted = ~far
     run, released = state.run, state.released
     for i in np.flatnonzero(far):
         run = run + 1 if i == 0 or far[i - 1] else 1
         if run >= cfg.release_after:  # a lasting shift: let it through from here on
             accepted[i:] = True
-            history, run, released = np.empty((0, 6)), 0, released + 1
+            labels, residuals = np.empty((0, 6)), np.empty((0, 6))
+            run, released = 0, released + 1
             break
     else:
         if not far[-1]:
             run = 0
-    history = np.concatenate([history, r[accepted]])[-cfg.history :]
-    quarantined = state.quarantined + int((~accepted).sum())
-    new = replace(
-        state, history=history, labels=labels, run=run, quarantined=quarantined, released=released
+    labels = np.concatenate([labels, y[accepted]])[-cfg.history :]
+    if r is not None:
+        residuals = np.concatenate([residuals, r[accepted]])[-cfg.history :]
+    return accepted, QuarantineState(
+        labels=labels,
+        residuals=residuals,
+        run=run,
+        quarantined=state.quarantined + int((~accepted).sum()),
+        released=released,
     )
-    return accepted, new
 
 
 def model_residuals(
     model: ErrorModel, X: np.ndarray, Y: np.ndarray
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """What :func:`screen` compares: the residuals of ``Y`` against ``model`` and the same
-    standardized by its predictive scale; the labels and None while the model is untrained."""
-    Y = np.asarray(Y, dtype=float)
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The residuals of ``Y`` against ``model`` and the same standardized by its predictive
+    scale, as :func:`screen` takes them; (None, None) while the model is untrained."""
     if not model.is_fitted:
-        return Y, None
+        return None, None
     ev = model.predict(X)
-    r = Y - ev.gamma
+    r = np.asarray(Y, dtype=float) - ev.gamma
     return r, r / np.maximum(ev.scale(), 1e-15)
 
 

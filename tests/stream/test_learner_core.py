@@ -1,6 +1,8 @@
 """The learner stage core: hold-out, updates, duplicates, checkpoint -> restart continues,
 quarantined points neither tested nor learned."""
 
+import io
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -11,9 +13,12 @@ from kinematics.description import load_description
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from sim_sources.cell import simulate
 from sim_sources.scenarios import get_scenario
+from stream.bus import BusConfig, free_port, open_session
 from stream.learner_core import LearnerCore, LearnerStageConfig
-from stream.messages import Batch, RejectedMessageError
+from stream.log import JsonLogger
+from stream.messages import Batch, Diagnostics, Metrics, RejectedMessageError, decode, encode, key
 from stream.points import dataset_to_points
+from stream.stages.learner_stage import LearnerStage
 
 CFG = LearnerStageConfig(
     model=ModelConfig(hidden_layers=1, neurons=16),
@@ -127,3 +132,46 @@ def test_quarantined_points_are_neither_tested_nor_learned(batches):
     kept = {r.tobytes() for r in np.concatenate([c.test_x, c.learner.memory.x])}
     assert not kept & {X[i].tobytes() for i in bumped}
     assert c.metrics(0.0, 0.0, 0.0).quarantined == 10
+
+
+def test_the_learner_stage_publishes_the_quarantine(batches):
+    """On real loopback Zenoh: diagnostics count the quarantined points, metrics carry them."""
+    ds, bs = batches
+    robot, port = ds.meta.robot, free_port()
+    server = open_session(BusConfig.loopback(port, listen=True))
+    client = open_session(BusConfig.loopback(port, listen=False))
+    got: dict[str, list] = {"diagnostics": [], "metrics": []}
+    subs = [
+        client.declare_subscriber(
+            key("cell", robot, s), lambda x, s=s: got[s].append(x.payload.to_bytes())
+        )
+        for s in got
+    ]
+    log = io.StringIO()
+    stage = LearnerStage(
+        server, "cell", robot, load_description(robot), CFG, np.asarray(ds.meta.T_W_0),
+        logger=JsonLogger(stream=log),
+    )  # fmt: skip
+    points = list(bs[3].points)
+    for i in range(5, 15):
+        x, y, z = points[i].xyz
+        points[i] = replace(points[i], xyz=(x, y + 0.05, z))
+    try:
+        time.sleep(0.5)
+        for b in (*bs[:3], Batch(seq=3, points=tuple(points))):
+            client.put(key("cell", robot, "batches"), encode(b))
+        deadline = time.monotonic() + 120
+        while len(got["metrics"]) < 4 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        stage.publish_diagnostics()
+        while not got["diagnostics"] and time.monotonic() < deadline:
+            time.sleep(0.1)
+    finally:
+        stage.close(10.0)
+        for sub in subs:
+            sub.undeclare()
+        client.close()
+        server.close()
+    assert decode(got["metrics"][-1], Metrics).quarantined == 10
+    assert decode(got["diagnostics"][-1], Diagnostics).dropped["quarantined"] == 10
+    assert '"event":"points_quarantined"' in log.getvalue()
