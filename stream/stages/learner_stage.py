@@ -33,6 +33,7 @@ import numpy as np
 import zenoh
 
 from kinematics.description import RobotDescription
+from learner.continual import UpdateMetrics
 from learner.snapshot import snapshot_to_bytes
 from stream.bus import Received
 from stream.learner_core import LearnerCore, LearnerStageConfig, Update
@@ -147,6 +148,7 @@ class LearnerStage(Stage):
     def _learn(self, batch: Batch, lost: int) -> None:
         core = self.core
         update = core.add_batch(replace(batch, seq=core.last_seq + 1))
+        self._report_poisoning(core.last_step)
         last_seq, next_point = core.windows.pop(batch.epoch, (-1, 0))  # most recently used last
         end = batch.first + len(batch.points)
         core.windows[batch.epoch] = (max(last_seq, batch.seq), max(next_point, end))
@@ -173,6 +175,34 @@ class LearnerStage(Stage):
         if update is not None:
             self._publish(update)
             self._checkpoint()
+
+    def _report_poisoning(self, step: UpdateMetrics | None) -> None:
+        """Count the batch's quarantined points (diagnostics ``dropped["quarantined"]``) and a
+        withheld update (``dropped["withheld"]``, ``refused["update"]``); log every withheld
+        update once, quarantined points at a bounded rate."""
+        if step is None:
+            return
+        total = self.core.learner.quarantine.quarantined
+        if step.quarantined:
+            self.counter.drop("quarantined", step.quarantined)
+            self.log.limited(
+                "points_quarantined",
+                key="learner:quarantined",
+                robot=self.robot,
+                points=step.quarantined,
+                total=total,
+            )
+        if step.withheld:
+            tol = self.core.cfg.continual.quarantine.publish_tolerance
+            detail = f"held-out error would grow more than {tol:.0%} over {step.holdout_mm:.4f} mm"
+            self.counter.refuse("update", "withheld", detail)
+            self.log.info(
+                "update_withheld",
+                robot=self.robot,
+                version=self.core.learner.version,
+                holdout_mm=round(step.holdout_mm, 4),
+                withheld_total=self.core.learner.n_withheld,
+            )
 
     def _check_order(self, b: Batch) -> int:
         """Refuse a batch already learned (``duplicate``) or implausibly far ahead
