@@ -15,10 +15,12 @@ duplicate, a batch already learned is, and a gap in the numbering is reported as
 A batch whose ``seq`` jumps more than ``max_seq_jump`` ahead, or whose epoch lies ahead of the
 clock, is refused as ``future``. Forged numbers cannot wedge the stage: a duplicate is a
 ``seq`` learned in this run (or below what the checkpoint holds), not merely one below the
-highest seen, so a forged jump does not refuse the genuine batches after it; an epoch the stage
-no longer (or never) knew is joined where it stands, so a flood of forged epochs that pushes
-out the genuine one costs it nothing. A checkpoint that cannot be written (full disk, read-only
-directory) leaves no temporary file and the previous checkpoint intact, and ends the stage.
+highest seen; the kept numbering moves by the next ``seq`` or by a jump that the batch after it
+confirms, so a forged jump reaches neither the checkpoint nor the lost count; the run forgotten
+first is the least advanced one, so a flood of forged epochs does not push the genuine run out
+(and an epoch the stage does not know is joined where it stands). A checkpoint that cannot be
+written (full disk, read-only directory) leaves no temporary file and the previous checkpoint
+intact, and ends the stage.
 """
 
 from __future__ import annotations
@@ -50,7 +52,7 @@ from stream.messages import (
 from stream.stages._base import Stage
 from stream.state import AcceptedLog, remove_temporaries
 
-#: Window runs whose numbering the learner remembers (the most recently used ones).
+#: Window runs whose numbering the learner remembers (the least advanced is forgotten first).
 KEPT_EPOCHS = 16
 #: Learned ``seq`` s remembered per window run; past it the oldest half is forgotten.
 KEPT_SEQS = 100_000
@@ -85,6 +87,11 @@ class LearnerStage(Stage):
             self.accepted_log = AcceptedLog(self.checkpoint_path.with_suffix(".accepted"))
         #: Per epoch: the lowest ``seq`` that may still be new, and the ``seq`` s learned above it.
         self._learned: dict[int, tuple[int, set[int]]] = {}
+        #: Per epoch: a ``(seq, first)`` that jumped past the numbering, until the next confirms.
+        self._jumps: dict[int, tuple[int, int]] = {}
+        #: Per epoch: batches its numbering advanced by; the least advanced run is forgotten
+        #: first, so a flood of forged one-batch epochs cannot push the genuine run out.
+        self._weight: dict[int, int] = {}
         self.replayed_points = 0
         self.latest: bytes | None = None
         self.last_update: Update | None = None
@@ -101,6 +108,7 @@ class LearnerStage(Stage):
                 },
             )
             self._publish(self._restored_update())
+            self._weight = {e: s + 1 for e, (s, _) in self.core.windows.items()}
         self._replay()
         self.answer("model", self._reply_latest)
         self.subscribe("batches")
@@ -149,17 +157,19 @@ class LearnerStage(Stage):
         core = self.core
         update = core.add_batch(replace(batch, seq=core.last_seq + 1))
         self._report_poisoning(core.last_step)
-        last_seq, next_point = core.windows.pop(batch.epoch, (-1, 0))  # most recently used last
-        end = batch.first + len(batch.points)
-        core.windows[batch.epoch] = (max(last_seq, batch.seq), max(next_point, end))
+        self._advance(batch)
         floor, learned = self._learned.setdefault(batch.epoch, (0, set()))  # joined: none below
         learned.add(batch.seq)
         if len(learned) > KEPT_SEQS:
             keep = sorted(learned)[-KEPT_SEQS // 2 :]
             self._learned[batch.epoch] = (keep[0], set(keep))
-        for old in list(core.windows)[:-KEPT_EPOCHS]:
+        while len(core.windows) > KEPT_EPOCHS:  # the least advanced run, the oldest of those
+            order = list(core.windows)
+            old = min(order, key=lambda e: (self._weight.get(e, 0), order.index(e)))
             del core.windows[old]
             self._learned.pop(old, None)
+            self._jumps.pop(old, None)
+            self._weight.pop(old, None)
         self.counter.accept()
         if lost:
             self.lost_points += lost
@@ -204,9 +214,26 @@ class LearnerStage(Stage):
                 withheld_total=self.core.learner.n_withheld,
             )
 
+    def _advance(self, b: Batch) -> None:
+        """Move the run's numbering (kept with the checkpoint) on: by the next ``seq``, or by a
+        jump once the batch after it confirms it (a forged jump is never confirmed, so it never
+        reaches the checkpoint and cannot make a restarted learner refuse genuine batches)."""
+        windows = self.core.windows
+        last_seq, next_point = windows.pop(b.epoch, (b.seq - 1, b.first))  # unknown: joined
+        end = b.first + len(b.points)
+        jump = self._jumps.get(b.epoch)
+        if b.seq == last_seq + 1 or (jump is not None and b.seq == jump[0] + 1):
+            last_seq, next_point = b.seq, max(next_point, end)
+            self._weight[b.epoch] = self._weight.get(b.epoch, 0) + 1
+            if jump is not None and b.seq == jump[0] + 1:
+                del self._jumps[b.epoch]
+        elif b.seq > last_seq + 1:
+            self._jumps[b.epoch] = (b.seq, b.first)
+        windows[b.epoch] = (last_seq, next_point)  # most recently used last
+
     def _check_order(self, b: Batch) -> int:
         """Refuse a batch already learned (``duplicate``) or implausibly far ahead
-        (``future``); the number of points lost before it."""
+        (``future``); the number of points lost before it (a jump's: when it is confirmed)."""
         if b.epoch > (time.time() + self.max_clock_ahead_s) * 1000:
             raise RejectedMessageError("future", f"batch epoch {b.epoch} ms is ahead of the clock")
         if b.epoch not in self.core.windows:
@@ -220,7 +247,10 @@ class LearnerStage(Stage):
             raise RejectedMessageError(
                 "future", f"batch seq {b.seq} jumps more than {self.max_seq_jump} past {last_seq}"
             )
-        return max(b.first - next_first, 0)
+        jump = self._jumps.get(b.epoch)
+        if jump is not None and b.seq == jump[0] + 1:
+            return max(jump[1] - next_first, 0)  # the jump is confirmed: the gap before it
+        return max(b.first - next_first, 0) if b.seq == last_seq + 1 else 0
 
     def _checkpoint(self) -> None:
         """Write the checkpoint, then clear the accepted log it now holds; on OSError remove

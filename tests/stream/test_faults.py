@@ -159,10 +159,12 @@ def test_a_flood_of_forged_epochs_and_seqs_neither_wedges_the_learner_nor_drops_
     server = open_session(BusConfig.loopback(port, listen=True))
     client = open_session(BusConfig.loopback(port, listen=False))
     log = (tmp_path / "log.jsonl").open("w")
-    stage = LearnerStage(
-        server, "plant", robot, load_description(robot), SMALL, np.asarray(ds.meta.T_W_0),
-        tmp_path / "state" / "learner.checkpoint.safetensors", JsonLogger(stream=log),
+    args = dict(
+        session=server, cell="plant", robot=robot, desc=load_description(robot), cfg=SMALL,
+        T_W_0=np.asarray(ds.meta.T_W_0), logger=JsonLogger(stream=log),
+        checkpoint=tmp_path / "state" / "learner.checkpoint.safetensors",
     )  # fmt: skip
+    stage = LearnerStage(**args)
     pub = publisher(client, key("plant", robot, "batches"))
     epoch = int(time.time() * 1000) - 60_000
     sent = {"genuine": 0, "forged_learned": 0, "forged_refused": 0}
@@ -213,6 +215,15 @@ def test_a_flood_of_forged_epochs_and_seqs_neither_wedges_the_learner_nor_drops_
             "genuine",
         )
         assert wait_for(lambda: stage.core.learner.version > versions, 60), dict(c.dropped)
+        # the numbering kept with the checkpoint is the genuine run's: forged jumps never got in
+        assert stage.close(30) is None and stage.core.windows[epoch] == (10, 110)
+        stage = LearnerStage(**args)  # a restart: the next genuine batch is learned, not refused
+        time.sleep(1.0)  # the new subscription reaches the publisher's session
+        assert wait_for(lambda: pub.matching_status.matching)
+        send(Batch(seq=11, points=tuple(points[:10]), epoch=epoch, first=110), "genuine")
+        c2 = stage.counter
+        assert wait_for(lambda: c2.accepted + sum(c2.dropped.values()) >= 1, 60)
+        assert c2.accepted == 1 and dict(c2.dropped) == {}, dict(c2.dropped)
     finally:
         failure = stage.close(30)
         client.close()
@@ -221,6 +232,6 @@ def test_a_flood_of_forged_epochs_and_seqs_neither_wedges_the_learner_nor_drops_
     assert failure is None
     assert c.dropped["duplicate"] == 0 and stage.duplicates == 0
     assert c.dropped["future"] == sent["forged_refused"]
-    assert c.accepted == sent["genuine"] + sent["forged_learned"]
+    assert c.accepted + c2.accepted == sent["genuine"] + sent["forged_learned"]
     print(f"\nforged flood: {sent}; genuine learned {sent['genuine']}/{sent['genuine']}, "
           f"duplicates 0, refused as future {c.dropped['future']}")  # fmt: skip
