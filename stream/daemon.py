@@ -212,19 +212,19 @@ class Daemon:
     def _dashboard_stage(self, rc: RobotConfig, desc, T_W_0) -> DashboardStage:
         dc = self.cfg.dashboard
         dash = Dashboard(RobotModel(desc), recording_id=f"{self.cfg.cell}/{rc.name}")
+        rrd = served = None
         if dc.rrd:
             rrd = Path(dc.rrd)
             if len(self.cfg.robots) > 1:
                 rrd = rrd.with_name(f"{rrd.stem}_{rc.name}{rrd.suffix}")
             rrd = next_free_path(rrd)  # never overwrite an earlier run's recording
-            dash.save(rrd)
             self.recordings[f"rrd/{rc.name}"] = str(rrd)
         if dc.serve:
             i = dashboard_index(self.cfg, rc.name)  # each robot its own ports: none collide
-            url = dash.serve(dc.web_port + i, dc.grpc_port + i, dc.host)
+            served = (dc.web_port + i, dc.grpc_port + i, dc.host)
+        url = dash.open(rrd, served, dc.connect or None)  # all sinks at once (rerun replaces)
+        if url is not None:
             self.log.info("dashboard_served", robot=rc.name, url=url)
-        if dc.connect:
-            dash.connect(dc.connect)
         self.dashboards[rc.name] = dash
         return DashboardStage(
             self.session,

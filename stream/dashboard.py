@@ -24,8 +24,8 @@ its data on either; the viewer opens on ``time``. Entities (mm unless named):
   their error, redrawn every ``cloud_every`` points), ``world/errors`` (measured error arrows,
   scaled by ``arrow_scale``)
 
-Sinks: ``save`` an .rrd, ``serve`` a web viewer (:func:`viewer_url` opens the live recording),
-or ``connect`` to a running viewer.
+Sinks, set together by ``open``: an .rrd file, a served recording with a web viewer
+(:func:`viewer_url` opens it live), a running viewer.
 """
 
 from __future__ import annotations
@@ -102,28 +102,46 @@ class Dashboard:
         self._left_mm = np.zeros(0)
         self._inside = np.zeros(0)
         self._named: set[str] = set()
-        for path, style in SERIES_STYLE.items():
-            self._style(path, **style)
-        self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         self.blueprint = blueprint(reach_m(robot))
 
     # sinks
 
-    def save(self, path: str | Path) -> None:
-        """Stream everything logged from now on into an .rrd file."""
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        self.rec.save(str(path), default_blueprint=self.blueprint)
-
-    def serve(self, web_port: int = 9090, grpc_port: int = 9876, host: str = "localhost") -> str:
-        """Serve the recording on ``grpc_port`` and a web viewer on ``web_port``; return the
-        one URL that opens the live recording (``host``: how browsers reach this machine)."""
-        self.rec.serve_grpc(grpc_port=grpc_port, default_blueprint=self.blueprint)
+    def open(
+        self,
+        rrd: str | Path | None = None,
+        serve: tuple[int, int, str] | None = None,
+        connect: str | None = None,
+    ) -> str | None:
+        """Send from now on to every sink at once: an .rrd file, a served recording with a web
+        viewer (``(web_port, grpc_port, host)``, ``host`` being how browsers reach this
+        machine), a running viewer (``connect``: its URL, ``""`` for this machine's). Rerun
+        replaces a recording's sinks on each call, so they are set together, once. Returns the
+        one URL that opens the served recording (None when not served)."""
+        sinks: list = []
+        if rrd is not None:
+            Path(rrd).parent.mkdir(parents=True, exist_ok=True)
+            sinks.append(rr.FileSink(str(rrd)))
+        if serve is not None:
+            sinks.append(rr.GrpcServerSink(port=serve[1]))
+        if connect is not None:
+            sinks.append(rr.GrpcSink(connect or None))
+        self.rec.set_sinks(*sinks, default_blueprint=self.blueprint)
+        for path, style in SERIES_STYLE.items():  # a sink gets only what is logged after it
+            self._style(path, **style)
+        self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        if serve is None:
+            return None
+        web_port, grpc_port, host = serve
         rr.serve_web_viewer(web_port=web_port, open_browser=False)
         return viewer_url(host, web_port, grpc_port)
 
-    def connect(self, url: str | None = None) -> None:
-        """Send to a running viewer (``rerun`` on this machine by default)."""
-        self.rec.connect_grpc(url, default_blueprint=self.blueprint)
+    def save(self, path: str | Path) -> None:
+        """Only an .rrd file (see :meth:`open` for several sinks)."""
+        self.open(rrd=path)
+
+    def serve(self, web_port: int = 9090, grpc_port: int = 9876, host: str = "localhost") -> str:
+        """Only a served recording and web viewer; the URL that opens it (see :meth:`open`)."""
+        return self.open(serve=(web_port, grpc_port, host))
 
     # time
 

@@ -178,15 +178,19 @@ def test_metrics_with_nan_before_a_test_set_are_logged(tmp_path):
 
 
 @pytest.mark.integration
-def test_serve_opens_the_web_viewer_and_grpc_ports():
+def test_a_served_dashboard_still_writes_its_rrd(tmp_path):
     dash = Dashboard(UR10)
     web, grpc = free_port(), free_port()
-    url = dash.serve(web_port=web, grpc_port=grpc, host="127.0.0.1")
+    url = dash.open(rrd=tmp_path / "s.rrd", serve=(web, grpc, "127.0.0.1"))
     assert url == viewer_url("127.0.0.1", web, grpc)
-    dash.log_metrics(metrics(1))
+    for v in (1, 2):
+        dash.log_metrics(metrics(v))
     for port in (web, grpc):
         socket.create_connection(("127.0.0.1", port), timeout=5).close()
     dash.close()
+    assert len(read_scalars(tmp_path / "s.rrd")["/metrics/test_error/mean"][0]) == 2
+    styled = {c.entity_path for c in RrdReader(str(tmp_path / "s.rrd")).stream() if c.is_static}
+    assert "/metrics/test_error/mean" in styled  # names and colours reach the file
 
 
 RUN_CONFIG = """

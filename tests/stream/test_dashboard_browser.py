@@ -74,10 +74,11 @@ def fill(dash: Dashboard, rounds: int = 4, n: int = 25) -> None:
 
 
 @pytest.fixture(scope="module")
-def served():
+def served(tmp_path_factory):
     dash = Dashboard(RobotModel(load_description("ur10")))
     web, grpc = free_port(), free_port()
-    url = dash.serve(web_port=web, grpc_port=grpc)  # host "localhost", the default
+    rrd = tmp_path_factory.mktemp("browser") / "d.rrd"
+    url = dash.open(rrd=rrd, serve=(web, grpc, "localhost"))  # file and server, as the daemon
     fill(dash)
     yield url, web, grpc
     dash.close()
