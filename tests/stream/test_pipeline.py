@@ -177,7 +177,9 @@ def test_record_then_replay_gives_the_same_points_and_model(campaign, clean):
     offline = Joiner(WindowConfig(batch_size=LEARNER.continual.batch))
     points = [p for _, s in recorded_samples(mcap) for p in offline.push(s)] + offline.flush()
     assert [encode(p) for p in points] == run.points
-    replayed = run_pipeline(campaign, lambda session: replay_to_bus(mcap, session, speed=None))
+    replayed = run_pipeline(
+        campaign, lambda session: replay_to_bus(mcap, session, speed=None).published
+    )
     assert replayed.points == run.points
     np.testing.assert_array_equal(predictions(replayed), predictions(run))
 
