@@ -30,7 +30,7 @@ from kinematics.description import description_to_toml, load_description
 from learner.snapshot import snapshot_from_bytes
 from learner.workflow import evaluate_on_dataset
 from stream.bus import BusConfig, free_port, open_session
-from stream.messages import Diagnostics, Metrics, decode, decode_model, key
+from wire import Diagnostics, Metrics, decode, decode_model, key
 
 ROBOCAL = str(Path(sys.executable).with_name("robocal"))
 HERE = Path(__file__).resolve().parents[1]

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from stream.bus import BusConfig, alive_stages, free_port, open_session, publisher
-from stream.messages import (
+from wire import (
     Diagnostics,
     JointSample,
     TemperatureSample,

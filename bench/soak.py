@@ -23,8 +23,8 @@ from load import ROBOT, Daemon, proc_status
 from sim_sources.cell import simulate
 from sim_sources.scenarios import get_scenario
 from sim_sources.streaming import StreamingConfig
-from stream.messages import key
 from stream.sources import SimCellSource
+from wire import key
 
 
 def main() -> None:

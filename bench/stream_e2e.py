@@ -25,10 +25,10 @@ from sim_sources.scenarios import get_scenario
 from sim_sources.streaming import StreamingConfig, cell_samples
 from stream.bus import BusConfig, free_port, open_session
 from stream.log import JsonLogger
-from stream.messages import DataPoint, TrackerSample, decode, key
 from stream.sources import SimCellSource
 from stream.stages import WindowStage
 from stream.window import Joiner, WindowConfig
+from wire import DataPoint, TrackerSample, decode, key
 
 CELL = "bench"
 

@@ -21,8 +21,8 @@ from sim_sources.cell import simulate
 from sim_sources.scenarios import get_scenario
 from stream.demo import DEMO_LEARNER
 from stream.learner_core import LearnerCore
-from stream.messages import Batch
 from stream.points import dataset_to_points
+from wire import Batch
 
 
 def main() -> None:

@@ -14,8 +14,8 @@ import time
 from sim_sources.cell import simulate
 from sim_sources.scenarios import get_scenario
 from sim_sources.streaming import StreamingConfig, cell_samples
-from stream.messages import STREAM_TYPES, decode, encode
 from stream.window import Batcher, Joiner, WindowConfig
+from wire import STREAM_TYPES, decode, encode
 
 _KIND = {"JointSample": "joints", "TrackerSample": "tracker", "TemperatureSample": "temperature"}
 

@@ -30,7 +30,7 @@ import numpy as np
 
 from kinematics.dataset import Dataset
 from kinematics.errors import ConfigError
-from stream.messages import JointSample, TemperatureSample, TrackerSample
+from wire import JointSample, TemperatureSample, TrackerSample
 
 Sample = JointSample | TrackerSample | TemperatureSample
 

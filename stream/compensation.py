@@ -35,7 +35,7 @@ from kinematics.errors import ConfigError
 from kinematics.model import RobotModel
 from kinematics.transforms import apply_error, pose_error, transform_from_xyz_quat
 from learner.model import ErrorModel
-from stream.messages import JOINT_LIMIT_RAD, RejectedMessageError, check_finite
+from wire import JOINT_LIMIT_RAD, RejectedMessageError, check_finite
 
 #: What compensation does with a command the solver cannot land (see the module doc).
 POLICIES = ("refuse", "flag", "best_effort")

@@ -45,7 +45,7 @@ from stream.compensation import CompensationReply
 from stream.dashboard_layout import SERIES_STYLE, TIMELINE, blueprint
 from stream.dashboard_robot import reach_m, robot_archetypes
 from stream.dashboard_scores import error_colors, rolling_coverage, score_points
-from stream.messages import Diagnostics, Metrics
+from wire import Diagnostics, Metrics
 
 APPLICATION_ID = "robocal"
 #: Most named series in one recording (drop reasons come from messages: a bound on entities).

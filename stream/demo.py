@@ -39,9 +39,9 @@ from stream.config import DaemonConfig, DashboardConfig, RecorderConfig, RobotCo
 from stream.daemon import Daemon
 from stream.learner_core import LearnerStageConfig
 from stream.log import JsonLogger
-from stream.messages import decode, decode_model, encode, key
 from stream.sources import SimCellSource
 from stream.window import WindowConfig
+from wire import decode, decode_model, encode, key
 
 # The production example's learner (deploy/robocal.example.toml): the library defaults with a
 # memory large enough for the continual model to match batch training.

@@ -36,8 +36,8 @@ from learner.features import FeatureSpec, dataset_features, dataset_labels, feat
 from learner.holdout import HeldOut, MemoryAge, heldout_metrics, holdout_mask
 from learner.model import ErrorModel
 from learner.snapshot import read_metadata, snapshot_from_bytes, snapshot_to_bytes
-from stream.messages import Batch, Metrics, ModelHeader, RejectedMessageError
 from stream.points import points_to_dataset, temperature_column
+from wire import Batch, Metrics, ModelHeader, RejectedMessageError
 
 CHECKPOINT_SCHEMA = "robocal.learner_stage"
 

@@ -2,7 +2,7 @@
 
 One channel per key expression; JSON streams use message encoding ``json`` with a JSON schema
 named ``robocal.<stream>``; model snapshots use ``robocal-model`` (the framed binary payload of
-stream.messages). ``log_time`` is the receive time, ``publish_time`` the source time ``t``
+wire.codec). ``log_time`` is the receive time, ``publish_time`` the source time ``t``
 (ns; the receive time when a payload has none). Chunks are zstd-compressed and indexed.
 
 A recording is never truncated or overwritten: when the configured file exists, the recorder
@@ -34,7 +34,7 @@ from mcap.summary import Summary
 from mcap.writer import Writer
 
 from kinematics.errors import DatasetError
-from stream.messages import (
+from wire import (
     STREAM_TYPES,
     RejectedMessageError,
     decode,

@@ -1,6 +1,6 @@
 """Data points ↔ the dataset format, so the learner's feature and label functions apply as-is.
 
->>> from stream.messages import DataPoint
+>>> from wire import DataPoint
 >>> p = DataPoint(seq=0, t=1.0, q=(0.0,) * 6, xyz=(1.0, 0.0, 0.5), quat=(0.0, 0.0, 0.0, 1.0),
 ...               temperature_names=("ambient",), temperatures=(21.0,))
 >>> ds = points_to_dataset([p], robot="ur10")
@@ -17,7 +17,7 @@ import pandas as pd
 
 from kinematics.dataset import POSE_COLUMNS, Dataset, DatasetMeta
 from kinematics.errors import DatasetError
-from stream.messages import DataPoint
+from wire import DataPoint
 
 
 def temperature_column(name: str) -> str:

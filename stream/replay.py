@@ -22,7 +22,7 @@ import zenoh
 from kinematics.errors import ConfigError
 from stream.bus import BusConfig, open_session, publisher
 from stream.mcap_io import SOURCE_STREAMS, Recorded, RecordingReader
-from stream.messages import RejectedMessageError, split_key
+from wire import RejectedMessageError, split_key
 
 
 @dataclass(frozen=True, kw_only=True)

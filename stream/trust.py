@@ -26,7 +26,7 @@ from kinematics.description import RobotDescription
 from kinematics.errors import ConfigError
 from learner.model import ErrorModel
 from learner.snapshot import snapshot_from_bytes
-from stream.messages import ModelHeader, RejectedMessageError, decode_model
+from wire import ModelHeader, RejectedMessageError, decode_model
 
 
 @dataclass(frozen=True, kw_only=True)

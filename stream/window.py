@@ -1,6 +1,6 @@
 """Event-time join of joint, tracker and temperature samples into data points (pure).
 
-A tracker sample at ``t_k`` becomes a :class:`~stream.messages.DataPoint` when the robot was
+A tracker sample at ``t_k`` becomes a :class:`~wire.messages.DataPoint` when the robot was
 settled (every joint speed, from consecutive joint samples in ``[t_k - settle_window_s,
 t_k + joint_tolerance_s]``, below ``settle_velocity_rad_s``), the nearest joint sample lies
 within ``joint_tolerance_s`` and a temperature sample at or before ``t_k`` lies within
@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kinematics.errors import ConfigError
-from stream.messages import (
+from wire import (
     Batch,
     DataPoint,
     DropCounter,

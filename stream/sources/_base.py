@@ -1,11 +1,11 @@
 """The ``Source`` family: a loop that reads a device (or a file) and publishes samples.
 
 A controller, tracker or DAQ adapter is one small module: subclass :class:`Source`, implement
-:meth:`Source.run` (read, convert to a ``stream.messages`` sample, ``self.publish``) while
+:meth:`Source.run` (read, convert to a ``wire`` sample, ``self.publish``) while
 ``self.running``; open the device in ``setup()`` and close it in ``cleanup(failed)``. What a
 source could not deliver (a device that dropped, a payload it could not decode, a gap in the
 device's sequence numbers) is counted by reason with :meth:`Source.undelivered`; the counts go
-out as :class:`~stream.messages.Diagnostics` (stage ``source_<kind>``) on
+out as :class:`~wire.messages.Diagnostics` (stage ``source_<kind>``) on
 ``robocal/<cell>/<robot>/diagnostics`` every ``diagnostics_period_s`` and when the source ends.
 """
 
@@ -19,7 +19,7 @@ import time
 import zenoh
 
 from stream.bus import publisher
-from stream.messages import (
+from wire import (
     DropCounter,
     JointSample,
     RejectedMessageError,

@@ -27,9 +27,9 @@ from kinematics.description import RobotDescription
 from kinematics.errors import ConfigError
 from kinematics.transforms import xyz_quat_from_transform
 from sim_sources.streaming import Sample, StreamingConfig, cell_samples, visit_times
-from stream.messages import JointSample, TemperatureSample, TrackerSample
 from stream.sources.config import DatasetSourceConfig
 from stream.sources.sim import SimCellSource
+from wire import JointSample, TemperatureSample, TrackerSample
 
 POSE_COLUMNS = ["x", "y", "z", "qx", "qy", "qz", "qw"]
 #: A joint sample this close (s) to a measurement time is the measurement's.

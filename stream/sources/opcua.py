@@ -20,9 +20,9 @@ import zenoh
 from asyncua import Client, ua
 
 from kinematics.errors import ConfigError
-from stream.messages import TemperatureSample
 from stream.sources._base import Source
 from stream.sources.config import OpcUaSourceConfig
+from wire import TemperatureSample
 
 #: What a dropped or restarting server raises on a request.
 CONNECTION_ERRORS = (OSError, EOFError, TimeoutError, asyncio.TimeoutError, ua.UaError)

@@ -28,9 +28,9 @@ from rosbags.typesys import Stores, get_typestore
 from zenoh.ext import Int64, z_deserialize
 
 from kinematics.errors import ConfigError
-from stream.messages import JointSample, TrackerSample
 from stream.sources._base import Source
 from stream.sources.config import Ros2SourceConfig
+from wire import JointSample, TrackerSample
 
 JOINT_TYPE = "sensor_msgs/msg/JointState"
 POSE_TYPES = {

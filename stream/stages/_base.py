@@ -12,7 +12,7 @@ writes go through :meth:`Stage.persist`: with ``on_disk_full = "wait"`` a write 
 lack of space or permission is retried every ``retry_s`` until it succeeds (one line when it
 starts waiting, one when it resumes) instead of ending the stage.
 
-Memory is bounded: a sample larger than :data:`~stream.messages.MAX_PAYLOAD_BYTES` (models:
+Memory is bounded: a sample larger than :data:`~wire.messages.MAX_PAYLOAD_BYTES` (models:
 :data:`MAX_MODEL_BYTES`) is dropped as ``too_large`` before it is copied, and what the worker's
 bounded queue cannot take is dropped as ``overload``; both are counted in the diagnostics.
 """
@@ -31,8 +31,8 @@ import zenoh
 from kinematics.errors import RobocalError
 from stream.bus import Received, Worker, declare_alive, publisher
 from stream.log import JsonLogger
-from stream.messages import MAX_PAYLOAD_BYTES, DropCounter, RejectedMessageError, encode, key
 from stream.state import describe_os_error
+from wire import MAX_PAYLOAD_BYTES, DropCounter, RejectedMessageError, encode, key
 
 #: The largest model snapshot a stage takes (bytes); every other stream: MAX_PAYLOAD_BYTES.
 MAX_MODEL_BYTES = 64 * 2**20

@@ -27,9 +27,9 @@ from stream.bus import Received
 from stream.compensation import CompensationConfig, CompensationRequest
 from stream.compensation_guard import GuardConfig, guarded_compensate
 from stream.log import JsonLogger
-from stream.messages import RejectedMessageError, decode, encode
 from stream.stages._base import Stage
 from stream.trust import ModelGate, ModelTrustConfig
+from wire import RejectedMessageError, decode, encode
 
 #: Reasons of a model not adopted that are logged (``model_old`` is routine, only counted).
 LOGGED_REFUSALS = ("model_foreign", "model_version", "snapshot", "malformed", "too_large")

@@ -20,7 +20,11 @@ from stream.bus import Received
 from stream.compensation import CompensationReply
 from stream.dashboard import Dashboard, PointBatch
 from stream.log import JsonLogger
-from stream.messages import (
+from stream.points import points_to_dataset
+from stream.stages._base import Stage
+from stream.stages.compensation_service import adopt
+from stream.trust import ModelGate, ModelTrustConfig
+from wire import (
     DataPoint,
     Diagnostics,
     Metrics,
@@ -28,10 +32,6 @@ from stream.messages import (
     decode,
     split_key,
 )
-from stream.points import points_to_dataset
-from stream.stages._base import Stage
-from stream.stages.compensation_service import adopt
-from stream.trust import ModelGate, ModelTrustConfig
 
 
 class DashboardStage(Stage):

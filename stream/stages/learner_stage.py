@@ -1,6 +1,6 @@
 """The learner stage: batches in; model snapshots, metrics and the latest-model queryable out.
 
-Snapshots are published on ``.../model`` as the framed payload of stream.messages (header JSON
+Snapshots are published on ``.../model`` as the framed payload of wire.codec (header JSON
 + safetensors); the same payload answers queries on ``.../model`` so a late joiner gets the
 newest model at once. With a checkpoint path, the state is written after every update and
 restored on start, and every batch the stage accepts is first appended (fsync'd) to an
@@ -40,7 +40,9 @@ from learner.snapshot import snapshot_to_bytes
 from stream.bus import Received
 from stream.learner_core import LearnerCore, LearnerStageConfig, Update
 from stream.log import JsonLogger
-from stream.messages import (
+from stream.stages._base import Stage
+from stream.state import AcceptedLog, remove_temporaries
+from wire import (
     Batch,
     Metrics,
     ModelHeader,
@@ -49,8 +51,6 @@ from stream.messages import (
     encode,
     encode_model,
 )
-from stream.stages._base import Stage
-from stream.state import AcceptedLog, remove_temporaries
 
 #: Window runs whose numbering the learner remembers (the least advanced is forgotten first).
 KEPT_EPOCHS = 16

@@ -19,7 +19,10 @@ import zenoh
 from kinematics.errors import ConfigError, RobocalError
 from stream.bus import Received
 from stream.log import JsonLogger
-from stream.messages import (
+from stream.stages._base import Stage
+from stream.state import write_atomic
+from stream.window import Batcher, Joiner, WindowConfig
+from wire import (
     STREAM_TYPES,
     Batch,
     DataPoint,
@@ -30,9 +33,6 @@ from stream.messages import (
     split_key,
     to_dict,
 )
-from stream.stages._base import Stage
-from stream.state import write_atomic
-from stream.window import Batcher, Joiner, WindowConfig
 
 STATE_SCHEMA = "robocal.window_state"
 #: A forward jump in a source's ``seq`` up to this many is counted as samples ``missed``

@@ -7,7 +7,7 @@ from kinematics.errors import ConfigError
 from sim_sources.cell import simulate
 from sim_sources.scenarios import get_scenario
 from sim_sources.streaming import StreamingConfig, cell_samples, min_jerk, paced
-from stream.messages import JointSample, TemperatureSample, TrackerSample
+from wire import JointSample, TemperatureSample, TrackerSample
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ from stream.compensation import (
     controller_jacobian,
     features_at,
 )
-from stream.messages import RejectedMessageError, decode, encode
+from wire import RejectedMessageError, decode, encode
 
 
 def true_error(q: np.ndarray) -> np.ndarray:

@@ -10,7 +10,7 @@ from kinematics.transforms import xyz_quat_from_transform
 from learner.config import ModelConfig
 from stream.compensation import CompensationConfig, CompensationRequest
 from stream.compensation_guard import GuardConfig, guarded_compensate, reach_m
-from stream.messages import RejectedMessageError, decode, encode
+from wire import RejectedMessageError, decode, encode
 
 CODES = (
     "joint_limits",

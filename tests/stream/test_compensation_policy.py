@@ -12,8 +12,8 @@ from learner.snapshot import snapshot_to_bytes
 from stream.bus import BusConfig, free_port, open_session
 from stream.compensation import CompensationConfig, CompensationReply, CompensationRequest
 from stream.compensation_guard import GuardConfig, guarded_compensate
-from stream.messages import ModelHeader, decode, encode, encode_model, key
 from stream.stages.compensation_service import CompensationService
+from wire import ModelHeader, decode, encode, encode_model, key
 
 # q5 = 1 mrad: the wrist is nearly singular (smallest singular value of the controller
 # Jacobian 5e-4); landing takes about 0.1 rad of wrist motion, five capped steps give 0.05 rad

@@ -15,8 +15,8 @@ from sim_sources.cell import simulate
 from sim_sources.scenarios import get_scenario
 from sim_sources.streaming import StreamingConfig
 from stream.bus import BusConfig, alive_stages, free_port, open_session
-from stream.messages import decode_model, key
 from stream.sources import SimCellSource
+from wire import decode_model, key
 
 pytestmark = pytest.mark.integration
 

@@ -29,7 +29,9 @@ from stream.config import DaemonConfig, DashboardConfig, RecorderConfig, RobotCo
 from stream.daemon import Daemon
 from stream.learner_core import LearnerStageConfig
 from stream.log import JsonLogger
-from stream.messages import (
+from stream.sources import SimCellSource
+from stream.window import WindowConfig
+from wire import (
     Batch,
     DataPoint,
     Diagnostics,
@@ -44,8 +46,6 @@ from stream.messages import (
     key,
     to_dict,
 )
-from stream.sources import SimCellSource
-from stream.window import WindowConfig
 
 pytestmark = pytest.mark.integration
 

@@ -23,9 +23,9 @@ from sim_sources.streaming import StreamingConfig, cell_samples
 from stream.bus import BusConfig, alive_stages, free_port, open_session
 from stream.learner_core import LearnerCore, LearnerStageConfig
 from stream.mcap_io import read_mcap
-from stream.messages import Batch, Diagnostics, decode, key
 from stream.sources import SimCellSource
 from stream.state import AcceptedLog
+from wire import Batch, Diagnostics, decode, key
 
 pytestmark = pytest.mark.integration
 

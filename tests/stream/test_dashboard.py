@@ -23,7 +23,7 @@ from stream.compensation import CompensationReply
 from stream.dashboard import MAX_SERIES, Dashboard, PointBatch, read_scalars, viewer_url
 from stream.dashboard_robot import robot_archetypes, segments, skeleton, z_to
 from stream.dashboard_scores import error_colors, norm_band, rolling_coverage, score_points
-from stream.messages import Diagnostics, Metrics
+from wire import Diagnostics, Metrics
 
 UR10 = RobotModel(load_description("ur10"))
 

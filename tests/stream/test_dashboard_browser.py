@@ -20,7 +20,7 @@ from learner.evidential import Evidential
 from stream.bus import free_port
 from stream.dashboard import Dashboard, PointBatch
 from stream.dashboard_view import ViewerCheck, find_chromium, open_viewer
-from stream.messages import Diagnostics, Metrics
+from wire import Diagnostics, Metrics
 
 CHROMIUM = find_chromium()
 VIEWPORT = (1200, 750)  # smaller than a screen: the software rasterizer draws it faster

@@ -27,8 +27,8 @@ from stream.dashboard import read_scalars
 from stream.demo import compensation_check, demo_config
 from stream.learner_core import LearnerStageConfig
 from stream.log import JsonLogger
-from stream.messages import TrackerSample
 from stream.sources import SimCellSource
+from wire import TrackerSample
 
 pytestmark = pytest.mark.integration
 

@@ -24,12 +24,12 @@ from stream.config import DaemonConfig, RobotConfig
 from stream.daemon import Daemon
 from stream.learner_core import LearnerStageConfig
 from stream.log import JsonLogger
-from stream.messages import Batch, encode, key
 from stream.points import dataset_to_points
 from stream.sources import SimCellSource
 from stream.stages import LearnerStage
 from stream.stages.learner_stage import KEPT_EPOCHS
 from stream.window import WindowConfig
+from wire import Batch, encode, key
 
 pytestmark = pytest.mark.integration
 

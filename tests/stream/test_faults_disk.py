@@ -21,8 +21,8 @@ from sim_sources.scenarios import get_scenario
 from sim_sources.streaming import StreamingConfig
 from stream.bus import BusConfig, alive_stages, free_port, open_session
 from stream.learner_core import LearnerCore, LearnerStageConfig
-from stream.messages import key
 from stream.sources import SimCellSource
+from wire import key
 
 pytestmark = pytest.mark.integration
 

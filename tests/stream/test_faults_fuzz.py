@@ -19,7 +19,9 @@ from hypothesis import strategies as st
 from stream.bus import BusConfig, Received, free_port, open_session
 from stream.compensation import CompensationRequest
 from stream.log import JsonLogger
-from stream.messages import (
+from stream.stages import WindowStage
+from stream.window import WindowConfig
+from wire import (
     Batch,
     DataPoint,
     Diagnostics,
@@ -34,8 +36,6 @@ from stream.messages import (
     key,
     to_dict,
 )
-from stream.stages import WindowStage
-from stream.window import WindowConfig
 
 POINT = DataPoint(
     seq=3, t=12.5, q=(0.1,) * 6, xyz=(1.0, 0.2, 0.5), quat=(0.0, 0.0, 0.0, 1.0), qs=(0.1,) * 6,

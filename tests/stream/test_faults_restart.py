@@ -18,9 +18,9 @@ from sim_sources.scenarios import get_scenario
 from sim_sources.streaming import StreamingConfig
 from stream.bus import BusConfig, alive_stages, free_port, open_session
 from stream.learner_core import LearnerCore, LearnerStageConfig
-from stream.messages import Batch, decode, key
 from stream.sources import SimCellSource
 from stream.state import AcceptedLog
+from wire import Batch, decode, key
 
 pytestmark = pytest.mark.integration
 

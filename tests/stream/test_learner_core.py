@@ -16,9 +16,9 @@ from sim_sources.scenarios import get_scenario
 from stream.bus import BusConfig, free_port, open_session
 from stream.learner_core import LearnerCore, LearnerStageConfig
 from stream.log import JsonLogger
-from stream.messages import Batch, Diagnostics, Metrics, RejectedMessageError, decode, encode, key
 from stream.points import dataset_to_points
 from stream.stages.learner_stage import LearnerStage
+from wire import Batch, Diagnostics, Metrics, RejectedMessageError, decode, encode, key
 
 CFG = LearnerStageConfig(
     model=ModelConfig(hidden_layers=1, neurons=16),

@@ -28,9 +28,9 @@ from stream.compensation import CompensationReply, CompensationRequest
 from stream.config import config_from_dict, load_config
 from stream.daemon import Daemon
 from stream.log import JsonLogger
-from stream.messages import JointSample, TemperatureSample, TrackerSample, decode, encode, key
 from stream.router import open_router, router_config
 from stream.security import ROLES, make_line_certs
+from wire import JointSample, TemperatureSample, TrackerSample, decode, encode, key
 
 pytestmark = pytest.mark.integration
 DEPLOY = Path(__file__).resolve().parents[2] / "deploy"

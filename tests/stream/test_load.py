@@ -12,9 +12,9 @@ import pytest
 
 from stream.bus import BusConfig, free_port, open_session, publisher
 from stream.log import JsonLogger
-from stream.messages import JointSample, encode, key
 from stream.stages import WindowStage
 from stream.window import WindowConfig
+from wire import JointSample, encode, key
 
 pytestmark = pytest.mark.integration
 

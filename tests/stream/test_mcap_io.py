@@ -27,15 +27,15 @@ from stream.mcap_io import (
     read_mcap,
     recorded_samples,
 )
-from stream.messages import JointSample, ModelHeader, TrackerSample, encode, encode_model
 from stream.replay import ReplayOptions, replay_to_bus
 from stream.stages.recorder_stage import ROBOT_METADATA, RecorderStage
 from stream.trust import description_hash
+from wire import JointSample, ModelHeader, TrackerSample, encode, encode_model
 
 RECORDER_SCRIPT = """
 import sys, time
 from stream.mcap_io import McapRecorder
-from stream.messages import JointSample, encode
+from wire import JointSample, encode
 r = McapRecorder(sys.argv[1], flush_interval_s=3600)
 i = 0
 while True:

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from kinematics.errors import SchemaError
-from stream.messages import (
+from wire import (
     Batch,
     DataPoint,
     DropCounter,

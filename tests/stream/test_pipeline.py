@@ -22,10 +22,10 @@ from stream.daemon import Daemon
 from stream.learner_core import LearnerStageConfig
 from stream.log import JsonLogger
 from stream.mcap_io import recorded_samples
-from stream.messages import Diagnostics, JointSample, decode, decode_model, encode, key
 from stream.replay import replay_to_bus
 from stream.sources import SimCellSource
 from stream.window import Joiner, WindowConfig
+from wire import Diagnostics, JointSample, decode, decode_model, encode, key
 
 pytestmark = pytest.mark.integration
 

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from kinematics.errors import DatasetError
-from stream.messages import DataPoint
 from stream.points import dataset_to_points, points_to_dataset
+from wire import DataPoint
 
 
 def point(seq, **kw):

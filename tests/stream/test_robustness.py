@@ -16,7 +16,9 @@ from learner.features import feature_spec
 from learner.model import ErrorModel
 from learner.snapshot import snapshot_to_bytes
 from stream.bus import Received, Worker
-from stream.messages import (
+from stream.trust import ModelGate, ModelTrustConfig, description_hash
+from stream.window import Batcher, Joiner, WindowConfig
+from wire import (
     MAX_DEPTH,
     Batch,
     JointSample,
@@ -29,8 +31,6 @@ from stream.messages import (
     encode_model,
     parse_json,
 )
-from stream.trust import ModelGate, ModelTrustConfig, description_hash
-from stream.window import Batcher, Joiner, WindowConfig
 
 CFG = WindowConfig(n_joints=1, require_temperatures=False, allowed_lateness_s=0.0)
 

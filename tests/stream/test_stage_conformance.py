@@ -20,9 +20,9 @@ from stream.bus import BusConfig, alive_stages, free_port, liveliness_key, open_
 from stream.compensation import CompensationConfig
 from stream.dashboard import Dashboard
 from stream.learner_core import LearnerStageConfig
-from stream.messages import Diagnostics, decode, key
 from stream.stages import ROBOT_STAGES, STAGES, Stage, stage_class
 from stream.window import WindowConfig
+from wire import Diagnostics, decode, key
 
 pytestmark = pytest.mark.integration
 

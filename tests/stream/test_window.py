@@ -5,8 +5,8 @@ import random
 import pytest
 
 from kinematics.errors import ConfigError
-from stream.messages import JointSample, TemperatureSample, TrackerSample
 from stream.window import Batcher, Joiner, WindowConfig
+from wire import JointSample, TemperatureSample, TrackerSample
 
 CFG = WindowConfig(n_joints=2, batch_size=2, allowed_lateness_s=0.1)
 Q = (0.5, -0.25)

@@ -18,7 +18,7 @@ from kinematics.dataset import write_dataset
 from sim_sources.cell import simulate
 from sim_sources.scenarios import get_scenario
 from stream.bus import BusConfig, free_port, open_session
-from stream.messages import STREAM_TYPES, decode
+from wire import STREAM_TYPES, decode
 
 CELL, ROBOT = "cell1", "fanuc_m900ib700"
 CHANNELS = {"base": "Cell.Base", "j1_gear": "Cell.J1Gear"}

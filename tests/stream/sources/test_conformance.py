@@ -17,7 +17,6 @@ from kinematics.dataset import read_dataset, write_dataset
 from kinematics.description import load_description
 from stream.bus import free_port
 from stream.log import JsonLogger
-from stream.messages import Diagnostics, decode
 from stream.sources.build import SourceThread, build_source
 from stream.sources.config import (
     DatasetSourceConfig,
@@ -27,6 +26,7 @@ from stream.sources.config import (
 )
 from stream.sources.ros2 import JOINT_TYPE
 from tests.stream.sources.conftest import CELL, ROBOT, RosCell
+from wire import Diagnostics, decode
 
 pytestmark = pytest.mark.integration
 
