@@ -71,8 +71,9 @@ def streaming_config(cfg: DatasetSourceConfig, ds: Dataset) -> StreamingConfig:
 
 def dataset_samples(ds: Dataset, cfg: StreamingConfig) -> Iterator[Sample]:
     """The cell stream of ``ds`` with the rows' exact joints and temperatures at each
-    measurement time (a joint sample within ``SAME_TIME_S`` of it carries the row's joints);
-    every stream numbered ``seq`` 0, 1, ... in time order."""
+    measurement time (a joint sample within ``SAME_TIME_S`` of it carries the row's joints, a
+    temperature sample at it is the row's); every stream numbered ``seq`` 0, 1, ... with its
+    time strictly increasing."""
     tk = visit_times(ds, cfg)
     q = ds.q()
     qs_cols = secondary_columns(ds.table)
@@ -96,7 +97,10 @@ def dataset_samples(ds: Dataset, cfg: StreamingConfig) -> Iterator[Sample]:
         return replace(s, q=tuple(q[k].tolist()), qs=None if qs is None else tuple(qs[k].tolist()))
 
     row_joint = -1  # the last row whose exact joint sample went out
+    row_temperature_t = None  # the time of the last row's exact temperature sample
     for s in cell_samples(ds, cfg):
+        if isinstance(s, TemperatureSample) and row_temperature_t == s.t:
+            continue  # the grid hits the measurement time: the row's sample went out already
         if isinstance(s, JointSample):
             k = row_at(s.t)
             if k is not None:
@@ -109,6 +113,7 @@ def dataset_samples(ds: Dataset, cfg: StreamingConfig) -> Iterator[Sample]:
             if temps is not None:
                 values = tuple(temps[k].tolist())
                 yield numbered(TemperatureSample(seq=0, t=s.t, names=names, values=values))
+                row_temperature_t = s.t
         yield numbered(s)
 
 

@@ -34,9 +34,14 @@ pytestmark = pytest.mark.integration
 
 
 def joined(ds, cfg: DatasetSourceConfig) -> list:
+    """The window's points of the stream; each stream numbered 0, 1, ... with its time strictly
+    increasing (the window counts a gap in the numbering as samples missed)."""
     joiner = Joiner(WindowConfig(n_joints=ds.n_joints))
-    points = []
+    points, last = [], {}
     for s in dataset_samples(ds, streaming_config(cfg, ds)):
+        seq, t = last.get(type(s), (-1, -np.inf))
+        assert s.seq == seq + 1 and s.t > t, (s, seq, t)
+        last[type(s)] = (s.seq, s.t)
         points += joiner.push(s)
     assert dict(joiner.counter.dropped) == {}
     return points + joiner.flush()
@@ -47,6 +52,7 @@ def joined(ds, cfg: DatasetSourceConfig) -> list:
     [
         {"joint_rate_hz": 125.0},  # recorded time
         {"period_s": 0.77, "joint_rate_hz": 33.0, "temperature_rate_hz": 0.3},  # re-timed
+        {"period_s": 1.0, "joint_rate_hz": 20.0, "temperature_rate_hz": 2.0},  # grids hit t_k
     ],
 )
 def test_the_stream_joins_back_to_the_datasets_points(dataset_file, timing):
