@@ -35,6 +35,7 @@ from wire import Diagnostics, Metrics, decode, decode_model, key
 ROBOCAL = str(Path(sys.executable).with_name("robocal"))
 HERE = Path(__file__).resolve().parents[1]
 CELL, ROBOT, HOLDOUT, BATCH = "bench", "ur10", 10, 100
+STALL_S = 300.0  # no batch learned for this long (s): the stream is over
 
 CONFIG = """
 cell = "{cell}"
@@ -173,9 +174,15 @@ def streamed(
     )
     try:
         deadline = time.monotonic() + args.timeout_s
+        progress = (-1, time.monotonic())  # batches learned, when that last changed
         while "learner" not in diags or diags["learner"].accepted < n_batches:
             if proc.poll() is not None or time.monotonic() > deadline:
                 raise SystemExit(f"daemon ended or timed out: {proc.stderr.read()[-800:]}")
+            done = diags["learner"].accepted if "learner" in diags else 0
+            if done != progress[0]:
+                progress = (done, time.monotonic())
+            elif time.monotonic() - progress[1] > STALL_S:
+                break  # the window sent fewer full batches (a point it could not join)
             time.sleep(0.5)
         elapsed = time.perf_counter() - start
         time.sleep(1.5)  # the model and the last diagnostics of every stage
@@ -191,6 +198,7 @@ def streamed(
     report = evaluate_on_dataset(snapshot_from_bytes(snap), read_dataset(test)).to_dict()
     info = {
         "model_version": header.model_version,
+        "batches_learned": diags["learner"].accepted,
         "n_seen": metrics[-1].n_seen if metrics else 0,
         "quarantined": getattr(metrics[-1], "quarantined", None) if metrics else None,
         "exit_code": code,
