@@ -22,7 +22,7 @@ its data on either; the viewer opens on ``time``. Entities (mm unless named):
 - ``world/robot/{links,joints,tool}`` (``stream.dashboard_robot``, at the newest point),
   ``world/points`` (the newest ``max_points`` measured positions coloured by what is left of
   their error, redrawn every ``cloud_every`` points), ``world/errors`` (measured error arrows,
-  scaled by ``arrow_scale``)
+  scaled by ``arrow_scale``, coloured as their points)
 
 Sinks, set together by ``open``: an .rrd file, a served recording with a web viewer
 (:func:`viewer_url` opens it live), a running viewer.
@@ -102,7 +102,8 @@ class Dashboard:
         self._left_mm = np.zeros(0)
         self._inside = np.zeros(0)
         self._named: set[str] = set()
-        self.blueprint = blueprint(reach_m(robot))
+        self._reach = reach_m(robot)  # m: sizes in the 3-D view follow the robot
+        self.blueprint = blueprint(self._reach)
 
     # sinks
 
@@ -260,14 +261,17 @@ class Dashboard:
         self._unseen = 0
         if len(self._left_mm) == 0:
             return
-        scale = float(np.percentile(self._left_mm, 95))
-        self.rec.log(
-            "world/points",
-            rr.Points3D(self._positions, colors=error_colors(self._left_mm, scale), radii=0.012),
-        )
+        colors = error_colors(self._left_mm, float(np.percentile(self._left_mm, 95)))
+        r = self._reach
+        self.rec.log("world/points", rr.Points3D(self._positions, colors=colors, radii=0.004 * r))
         self.rec.log(
             "world/errors",
-            rr.Arrows3D(origins=self._positions, vectors=self._errors * self.arrow_scale),
+            rr.Arrows3D(
+                origins=self._positions,
+                vectors=self._errors * self.arrow_scale,
+                colors=colors,
+                radii=0.001 * r,
+            ),
         )
 
     def flush(self) -> None:
