@@ -6,8 +6,9 @@ as ``kinematics.errors`` does not load pinocchio, pandas and matplotlib (``roboc
 
 from __future__ import annotations
 
-from importlib import import_module
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from kinematics.lazy import lazy_exports
 
 if TYPE_CHECKING:
     from kinematics.accuracy import AccuracySummary, accuracy_summary
@@ -29,14 +30,7 @@ _WHERE = {
     "model": ("RobotModel",),
     "transforms": ("pose_error",),
 }
-_MODULE = {name: module for module, names in _WHERE.items() for name in names}
-
-
-def __getattr__(name: str) -> Any:
-    """The exported ``name``, importing its submodule on first use."""
-    if name not in _MODULE:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(import_module(f"{__name__}.{_MODULE[name]}"), name)
+__getattr__ = lazy_exports(__name__, _WHERE)
 
 
 __all__ = [

@@ -32,6 +32,21 @@ def _check(cond: bool, msg: str) -> None:
         raise ConfigError(msg)
 
 
+def _check_counts(cfg: object, section: str, names: tuple[str, ...]) -> None:
+    """Each field ``names`` of ``cfg`` is an int >= 1 (else ``<section>.<name>`` ConfigError)."""
+    for name in names:
+        value = getattr(cfg, name)
+        _check(
+            isinstance(value, int) and value >= 1,
+            f"{section}.{name} must be an int >= 1, got {value!r}",
+        )
+
+
+def _check_choice(section: str, name: str, value: object, choices: tuple[str, ...]) -> None:
+    """``value`` is one of ``choices`` (else ``<section>.<name>`` ConfigError)."""
+    _check(value in choices, f"{section}.{name} must be one of {choices}, got {value!r}")
+
+
 @dataclass(frozen=True, kw_only=True)
 class ModelConfig:
     """Shape of each of the six per-component MLPs, how many independently initialised
@@ -55,19 +70,13 @@ class ModelConfig:
             isinstance(self.neurons, int) and 1 <= self.neurons <= 4096,
             f"model.neurons must be an int in [1, 4096], got {self.neurons!r}",
         )
-        _check(
-            self.activation in ACTIVATIONS,
-            f"model.activation must be one of {ACTIVATIONS}, got {self.activation!r}",
-        )
+        _check_choice("model", "activation", self.activation, ACTIVATIONS)
         _check(0.0 <= self.dropout < 1.0, f"model.dropout must be in [0, 1), got {self.dropout}")
         _check(
             isinstance(self.members, int) and 1 <= self.members <= 16,
             f"model.members must be an int in [1, 16], got {self.members!r}",
         )
-        _check(
-            self.encoding in ENCODINGS,
-            f"model.encoding must be one of {ENCODINGS}, got {self.encoding!r}",
-        )
+        _check_choice("model", "encoding", self.encoding, ENCODINGS)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -97,12 +106,7 @@ class TrainConfig:
             0.0 <= self.weight_decay < 1.0,
             f"train.weight_decay must be in [0, 1), got {self.weight_decay}",
         )
-        for key in ("max_epochs", "patience_lr", "early_stop_patience"):
-            value = getattr(self, key)
-            _check(
-                isinstance(value, int) and value >= 1,
-                f"train.{key} must be an int >= 1, got {value!r}",
-            )
+        _check_counts(self, "train", ("max_epochs", "patience_lr", "early_stop_patience"))
         _check(self.lam >= 0.0, f"train.lam must be >= 0, got {self.lam}")
         _check(
             0.0 <= self.val_fraction < 1.0,
@@ -210,16 +214,8 @@ class ContinualConfig:
             f"continual.quarantine must be a table, got {type(self.quarantine).__name__}",
         )
         counts = ("memory", "batch", "init", "epochs_per_update", "init_epochs", "calibration_size")
-        for key in counts:
-            value = getattr(self, key)
-            _check(
-                isinstance(value, int) and value >= 1,
-                f"continual.{key} must be an int >= 1, got {value!r}",
-            )
-        _check(
-            self.strategy in STRATEGIES,
-            f"continual.strategy must be one of {STRATEGIES}, got {self.strategy!r}",
-        )
+        _check_counts(self, "continual", counts)
+        _check_choice("continual", "strategy", self.strategy, STRATEGIES)
         _check(
             0.0 < self.update_lr < 1.0,
             f"continual.update_lr must be in (0, 1), got {self.update_lr}",
@@ -230,10 +226,7 @@ class ContinualConfig:
         _check(
             0.0 < self.average <= 1.0, f"continual.average must be in (0, 1], got {self.average}"
         )
-        _check(
-            self.base in BASE_KINDS,
-            f"continual.base must be one of {BASE_KINDS}, got {self.base!r}",
-        )
+        _check_choice("continual", "base", self.base, BASE_KINDS)
         _check(
             0.0 <= self.aci_rate <= 1.0,
             f"continual.aci_rate must be in [0, 1], got {self.aci_rate}",

@@ -2,81 +2,11 @@
 ``sim_sources/`` and ``stream/`` both import from below (depends on ``kinematics.errors``).
 
 The messages and their checks live in :mod:`wire.messages`, encoding, decoding, model framing
-and drop counting in :mod:`wire.codec`; the names below are the package's public API.
+and drop counting in :mod:`wire.codec`; their ``__all__`` together is the package's API.
 """
 
-from wire.codec import (
-    DropCounter,
-    decode,
-    decode_model,
-    encode,
-    encode_model,
-    from_dict,
-    json_depth,
-    parse_json,
-    to_dict,
-)
-from wire.messages import (
-    JOINT_LIMIT_RAD,
-    MAX_DEPTH,
-    MAX_PAYLOAD_BYTES,
-    MAX_SEQ,
-    MAX_TIME_S,
-    POSITION_LIMIT_M,
-    QUATERNION_TOLERANCE,
-    ROOT,
-    STREAM_TYPES,
-    STREAMS,
-    TEMPERATURE_RANGE_C,
-    VERSION,
-    Batch,
-    DataPoint,
-    Diagnostics,
-    JointSample,
-    Metrics,
-    ModelHeader,
-    RejectedMessageError,
-    TemperatureSample,
-    TrackerSample,
-    check_count,
-    check_finite,
-    key,
-    split_key,
-)
+from wire import codec, messages
+from wire.codec import *  # noqa: F403
+from wire.messages import *  # noqa: F403
 
-__all__ = [
-    "JOINT_LIMIT_RAD",
-    "MAX_DEPTH",
-    "MAX_PAYLOAD_BYTES",
-    "MAX_SEQ",
-    "MAX_TIME_S",
-    "POSITION_LIMIT_M",
-    "QUATERNION_TOLERANCE",
-    "ROOT",
-    "STREAMS",
-    "STREAM_TYPES",
-    "TEMPERATURE_RANGE_C",
-    "VERSION",
-    "Batch",
-    "DataPoint",
-    "Diagnostics",
-    "DropCounter",
-    "JointSample",
-    "Metrics",
-    "ModelHeader",
-    "RejectedMessageError",
-    "TemperatureSample",
-    "TrackerSample",
-    "check_count",
-    "check_finite",
-    "decode",
-    "decode_model",
-    "encode",
-    "encode_model",
-    "from_dict",
-    "json_depth",
-    "key",
-    "parse_json",
-    "split_key",
-    "to_dict",
-]
+__all__ = [*messages.__all__, *codec.__all__]

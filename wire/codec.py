@@ -37,6 +37,18 @@ from wire.messages import (
     RejectedMessageError,
 )
 
+__all__ = [
+    "DropCounter",
+    "decode",
+    "decode_model",
+    "encode",
+    "encode_model",
+    "from_dict",
+    "json_depth",
+    "parse_json",
+    "to_dict",
+]
+
 Message = TypeVar("Message")
 
 

@@ -24,6 +24,34 @@ from typing import Any, ClassVar
 
 from kinematics.errors import SchemaError
 
+__all__ = [
+    "JOINT_LIMIT_RAD",
+    "MAX_DEPTH",
+    "MAX_PAYLOAD_BYTES",
+    "MAX_SEQ",
+    "MAX_TIME_S",
+    "POSITION_LIMIT_M",
+    "QUATERNION_TOLERANCE",
+    "ROOT",
+    "STREAM_TYPES",
+    "STREAMS",
+    "TEMPERATURE_RANGE_C",
+    "VERSION",
+    "Batch",
+    "DataPoint",
+    "Diagnostics",
+    "JointSample",
+    "Metrics",
+    "ModelHeader",
+    "RejectedMessageError",
+    "TemperatureSample",
+    "TrackerSample",
+    "check_count",
+    "check_finite",
+    "key",
+    "split_key",
+]
+
 VERSION = 1
 ROOT = "robocal"
 STREAMS = (

@@ -24,6 +24,12 @@ def _positive(**values: float) -> None:
             raise ConfigError(f"{name} must be a number > 0, got {value!r}")
 
 
+def _non_negative(name: str, value: Any, zero: str) -> None:
+    """``value`` is a number >= 0; ``zero`` says what 0 means (in the ConfigError)."""
+    if not (isinstance(value, int | float) and value >= 0):
+        raise ConfigError(f"{name} must be >= 0 (0: {zero}), got {value!r}")
+
+
 def _robot(robot: Any) -> None:
     if not isinstance(robot, str) or "/" in robot or "*" in robot:
         raise ConfigError(f"robot must be a robot name, got {robot!r}")
@@ -48,8 +54,7 @@ class SimSourceConfig:
         if not (isinstance(self.n, int) and self.n >= 1):
             raise ConfigError(f"n must be an int >= 1, got {self.n!r}")
         _positive(period_s=self.period_s, settle_s=self.settle_s)
-        if not (isinstance(self.speed, int | float) and self.speed >= 0):
-            raise ConfigError(f"speed must be >= 0 (0: as fast as possible), got {self.speed!r}")
+        _non_negative("speed", self.speed, "as fast as possible")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -73,10 +78,8 @@ class DatasetSourceConfig:
         _robot(self.robot)
         if not isinstance(self.path, str) or not self.path:
             raise ConfigError("path must name a dataset file (kind = 'dataset')")
-        if not (isinstance(self.speed, int | float) and self.speed >= 0):
-            raise ConfigError(f"speed must be >= 0 (0: as fast as possible), got {self.speed!r}")
-        if not (isinstance(self.period_s, int | float) and self.period_s >= 0):
-            raise ConfigError(f"period_s must be >= 0 (0: recorded time), got {self.period_s!r}")
+        _non_negative("speed", self.speed, "as fast as possible")
+        _non_negative("period_s", self.period_s, "recorded time")
         _positive(
             joint_rate_hz=self.joint_rate_hz,
             temperature_rate_hz=self.temperature_rate_hz,
