@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +18,7 @@ from kinematics.model import RobotModel
 from learner.config import ModelConfig, TrainConfig
 from learner.features import feature_spec
 from learner.model import ErrorModel
+from stream.bus import alive_stages
 
 Labels = Callable[[np.ndarray], np.ndarray]
 
@@ -36,3 +42,101 @@ def train_fanuc() -> Callable[[int, ModelConfig, int, Labels], tuple]:
         return robot, model, q
 
     return train
+
+
+#: A ``robocal run`` config: cell "plant", one robot's window and learner on loopback ``port``.
+DAEMON_TOML = """
+cell = "plant"
+checkpoint_dir = "{state}"
+{settings}
+[bus]
+mode = "peer"
+listen = ["tcp/127.0.0.1:{port}"]
+multicast_scouting = false
+
+[[robot]]
+name = "{robot}"
+description = "{robot}"
+stages = ["window", "learner"]
+T_W_0 = {T_W_0}
+
+[window]
+batch_size = {batch_size}
+
+[learner]
+holdout_every = 5
+
+[learner.model]
+hidden_layers = 1
+neurons = {neurons}
+
+[learner.continual]
+{continual}
+"""
+
+
+def daemon_config(
+    path: Path,
+    *,
+    port: int,
+    T_W_0: list[list[float]],
+    state: Path,
+    robot: str = "fanuc_m900ib700",
+    recorder: Path | None = None,
+    settings: str = "",
+    batch_size: int = 10,
+    neurons: int = 8,
+    **continual: int,
+) -> Path:
+    """Write a ``robocal run`` config to ``path`` (checkpoints in ``state``; top-level
+    ``settings`` lines; an MCAP recorder at ``recorder`` when given; ``[learner.continual]``
+    memory 30, batch 10, init 10, 3 epochs per update and 10 initial unless overridden)."""
+    cont = {"memory": 30, "batch": 10, "init": 10, "epochs_per_update": 3, "init_epochs": 10}
+    text = DAEMON_TOML.format(
+        state=state,
+        settings=settings,
+        port=port,
+        robot=robot,
+        T_W_0=json.dumps(T_W_0),
+        batch_size=batch_size,
+        neurons=neurons,
+        continual="\n".join(f"{k} = {v}" for k, v in (cont | continual).items()),
+    )
+    if recorder is not None:
+        text += f'\n[recorder]\npath = "{recorder}"\nflush_interval_s = 0.2\n'
+    path.write_text(text)
+    return path
+
+
+def start_daemon(config: Path) -> subprocess.Popen:
+    """``robocal run --config config`` as a real process (stderr, the JSON log, piped)."""
+    exe = str(Path(sys.executable).with_name("robocal"))
+    return subprocess.Popen(
+        [exe, "run", "--config", str(config)], stderr=subprocess.PIPE, text=True
+    )
+
+
+def wait_for(cond: Callable[[], bool], timeout: float = 60.0) -> bool:
+    """Poll ``cond`` every 50 ms until it holds or ``timeout`` (s) passes; its last value."""
+    deadline = time.monotonic() + timeout
+    while not cond() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return cond()
+
+
+def wait_alive(session, n: int, proc: subprocess.Popen, timeout: float = 60.0) -> None:
+    """Wait until ``n`` stages of cell "plant" are alive; fail at once if ``proc`` exits."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, proc.stderr.read()
+        if len(alive_stages(session, "plant", timeout_s=0.5)) >= n:
+            return
+        time.sleep(0.1)
+    raise AssertionError("stages did not come alive")
+
+
+def kill_running(*procs: subprocess.Popen | None) -> None:
+    """Kill each of ``procs`` that is still running (a test's clean-up; None is skipped)."""
+    for p in procs:
+        if p is not None and p.poll() is None:
+            p.kill()

@@ -3,10 +3,7 @@
 
 import json
 import signal
-import subprocess
-import sys
 import time
-from pathlib import Path
 
 import pytest
 from mcap.reader import make_reader
@@ -14,74 +11,31 @@ from mcap.reader import make_reader
 from sim_sources.cell import simulate
 from sim_sources.scenarios import get_scenario
 from sim_sources.streaming import StreamingConfig
-from stream.bus import BusConfig, alive_stages, free_port, open_session
+from stream.bus import BusConfig, free_port, open_session
 from stream.sources import SimCellSource
+from tests.stream.conftest import daemon_config, kill_running, start_daemon, wait_alive
 from wire import decode_model, key
 
 pytestmark = pytest.mark.integration
-
-CONFIG = """
-cell = "plant"
-checkpoint_dir = "{dir}"
-
-[bus]
-mode = "peer"
-listen = ["tcp/127.0.0.1:{port}"]
-multicast_scouting = false
-
-[[robot]]
-name = "fanuc_m900ib700"
-description = "fanuc_m900ib700"
-stages = ["window", "learner"]
-T_W_0 = {T_W_0}
-
-[window]
-batch_size = 20
-
-[learner]
-holdout_every = 5
-
-[learner.model]
-hidden_layers = 1
-neurons = 16
-
-[learner.continual]
-memory = 40
-batch = 20
-init = 10
-epochs_per_update = 5
-init_epochs = 20
-
-[recorder]
-path = "{dir}/plant.mcap"
-flush_interval_s = 0.2
-"""
-
-
-def start(config_path):
-    return subprocess.Popen(
-        [str(Path(sys.executable).with_name("robocal")), "run", "--config", str(config_path)],
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-
-
-def wait_alive(session, n, proc, timeout=60.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        assert proc.poll() is None, proc.stderr.read()
-        if len(alive_stages(session, "plant", timeout_s=0.5)) >= n:
-            return
-        time.sleep(0.2)
-    raise AssertionError("stages did not come alive")
 
 
 def test_run_learns_stops_on_sigterm_and_restarts_from_its_checkpoint(tmp_path):
     ds = simulate(get_scenario("paper"), 41, 2)
     port = free_port()
-    cfg = tmp_path / "robocal.toml"
-    cfg.write_text(CONFIG.format(dir=tmp_path, port=port, T_W_0=json.dumps(ds.meta.T_W_0)))
-    proc = start(cfg)
+    cfg = daemon_config(
+        tmp_path / "robocal.toml",
+        port=port,
+        T_W_0=ds.meta.T_W_0,
+        state=tmp_path,
+        recorder=tmp_path / "plant.mcap",
+        batch_size=20,
+        neurons=16,
+        memory=40,
+        batch=20,
+        epochs_per_update=5,
+        init_epochs=20,
+    )
+    proc = start_daemon(cfg)
     client = open_session(BusConfig.loopback(port, listen=False))
     try:
         wait_alive(client, 3, proc)  # recorder, window, learner
@@ -108,7 +62,7 @@ def test_run_learns_stops_on_sigterm_and_restarts_from_its_checkpoint(tmp_path):
         assert key("plant", robot, "model") in topics and key("plant", robot, "joints") in topics
         last_version = decode_model(models[-1])[0].model_version
 
-        restarted = start(cfg)
+        restarted = start_daemon(cfg)
         wait_alive(client, 3, restarted)
         replies = [r.ok for r in client.get(key("plant", robot, "model"), timeout=5.0)]
         assert decode_model(replies[0].payload.to_bytes())[0].model_version >= last_version
@@ -117,6 +71,4 @@ def test_run_learns_stops_on_sigterm_and_restarts_from_its_checkpoint(tmp_path):
         sub.undeclare()
     finally:
         client.close()
-        for p in (proc, locals().get("restarted")):
-            if p is not None and p.poll() is None:
-                p.kill()
+        kill_running(proc, locals().get("restarted"))

@@ -7,8 +7,6 @@ read-only state directory at start is one line and exit 2."""
 import hashlib
 import json
 import signal
-import subprocess
-import sys
 import threading
 import time
 from dataclasses import replace
@@ -20,52 +18,15 @@ from mcap.reader import make_reader
 from sim_sources.cell import simulate
 from sim_sources.scenarios import get_scenario
 from sim_sources.streaming import StreamingConfig, cell_samples
-from stream.bus import BusConfig, alive_stages, free_port, open_session
+from stream.bus import BusConfig, free_port, open_session
 from stream.learner_core import LearnerCore, LearnerStageConfig
 from stream.mcap_io import read_mcap
 from stream.sources import SimCellSource
 from stream.state import AcceptedLog
+from tests.stream.conftest import daemon_config, kill_running, start_daemon, wait_alive
 from wire import Batch, Diagnostics, decode, key
 
 pytestmark = pytest.mark.integration
-
-CONFIG = """
-cell = "plant"
-checkpoint_dir = "{state}"
-shutdown_timeout_s = 5.0
-
-[bus]
-mode = "peer"
-listen = ["tcp/127.0.0.1:{port}"]
-multicast_scouting = false
-
-[[robot]]
-name = "fanuc_m900ib700"
-description = "fanuc_m900ib700"
-stages = ["window", "learner"]
-T_W_0 = {T_W_0}
-
-[window]
-batch_size = 10
-
-[learner]
-holdout_every = 5
-
-[learner.model]
-hidden_layers = 1
-neurons = 8
-
-[learner.continual]
-memory = 30
-batch = 10
-init = 10
-epochs_per_update = 3
-init_epochs = 10
-
-[recorder]
-path = "{dir}/plant.mcap"
-flush_interval_s = 0.2
-"""
 
 
 class Shifted(SimCellSource):
@@ -80,26 +41,8 @@ class Shifted(SimCellSource):
             self.publish(replace(s, t=s.t + self.offset_s))
 
 
-def start(config_path):
-    return subprocess.Popen(
-        [str(Path(sys.executable).with_name("robocal")), "run", "--config", str(config_path)],
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-
-
 def logs(proc) -> list[dict]:
     return [json.loads(x) for x in proc.stderr.read().splitlines() if x.startswith("{")]
-
-
-def wait_alive(session, n, proc, timeout=60.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        assert proc.poll() is None, proc.stderr.read()
-        if len(alive_stages(session, "plant", timeout_s=0.5)) >= n:
-            return
-        time.sleep(0.1)
-    raise AssertionError("stages did not come alive")
 
 
 def sha(path: Path) -> str:
@@ -107,12 +50,14 @@ def sha(path: Path) -> str:
 
 
 def write_config(tmp_path, port, ds, state=None) -> Path:
-    cfg = tmp_path / "robocal.toml"
-    text = CONFIG.format(
-        dir=tmp_path, state=state or tmp_path / "state", port=port, T_W_0=json.dumps(ds.meta.T_W_0)
+    return daemon_config(
+        tmp_path / "robocal.toml",
+        port=port,
+        T_W_0=ds.meta.T_W_0,
+        state=state or tmp_path / "state",
+        recorder=tmp_path / "plant.mcap",
+        settings="shutdown_timeout_s = 5.0",
     )
-    cfg.write_text(text)
-    return cfg
 
 
 def test_kill_9_mid_stream_then_restart_continues_without_duplicates(tmp_path):
@@ -120,7 +65,7 @@ def test_kill_9_mid_stream_then_restart_continues_without_duplicates(tmp_path):
     robot, port = ds.meta.robot, free_port()
     cfg = write_config(tmp_path, port, ds)
     state = tmp_path / "state"
-    proc = start(cfg)
+    proc = start_daemon(cfg)
     client = open_session(BusConfig.loopback(port, listen=False))
     restarted = None
     try:
@@ -164,7 +109,7 @@ def test_kill_9_mid_stream_then_restart_continues_without_duplicates(tmp_path):
         expect_lost = window_state["points"] - pending - next_point - logged_points
         assert expect_lost >= 0 and emitted_before_kill <= window_state["points"]
 
-        restarted = start(cfg)
+        restarted = start_daemon(cfg)
         wait_alive(client, 3, restarted)
         n_models = len(models)
         later = Shifted(client, "plant", robot, simulate(get_scenario("paper"), 25, 6), source.cfg)
@@ -182,9 +127,7 @@ def test_kill_9_mid_stream_then_restart_continues_without_duplicates(tmp_path):
             sub.undeclare()
     finally:
         client.close()
-        for p in (proc, restarted):
-            if p is not None and p.poll() is None:
-                p.kill()
+        kill_running(proc, restarted)
     learner_diag = diags["learner"]
     assert learner_diag.dropped.get("duplicate", 0) == 0
     lost = [e for e in events if e["event"] == "points_lost"]
@@ -218,7 +161,7 @@ def test_a_state_dir_that_goes_away_stops_the_daemon_with_one_line_and_exit_2(tm
     cfg = write_config(tmp_path, port, ds)
     state = tmp_path / "state"
     ckpt = state / f"{robot}.checkpoint.safetensors"
-    proc = start(cfg)
+    proc = start_daemon(cfg)
     client = open_session(BusConfig.loopback(port, listen=False))
     try:
         wait_alive(client, 3, proc)
@@ -238,8 +181,7 @@ def test_a_state_dir_that_goes_away_stops_the_daemon_with_one_line_and_exit_2(tm
         feeder.join()
     finally:
         client.close()
-        if proc.poll() is None:
-            proc.kill()
+        kill_running(proc)
     events = logs(proc)
     failed = [e for e in events if e["event"] == "stage_failed"]
     assert code == 2 and took < 10 and len(failed) == 1, (code, took, failed)
@@ -258,7 +200,7 @@ def test_an_unwritable_state_dir_at_start_is_one_line_and_exit_2(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("x")
     cfg = write_config(tmp_path, free_port(), ds, state=blocker / "state")
-    proc = start(cfg)
+    proc = start_daemon(cfg)
     assert proc.wait(60) == 2
     err = proc.stderr.read().strip().splitlines()
     assert len(err) == 1 and err[0].startswith("robocal: error: checkpoint_dir"), err
@@ -270,7 +212,7 @@ def test_sigterm_while_the_learner_is_busy_ends_the_daemon_within_10_s(tmp_path)
     cfg = write_config(tmp_path, port, ds)
     busy = cfg.read_text().replace("init_epochs = 10", "init_epochs = 1000000")
     cfg.write_text(busy.replace("neurons = 8", "neurons = 256"))
-    proc = start(cfg)
+    proc = start_daemon(cfg)
     client = open_session(BusConfig.loopback(port, listen=False))
     try:
         wait_alive(client, 3, proc)
@@ -289,8 +231,7 @@ def test_sigterm_while_the_learner_is_busy_ends_the_daemon_within_10_s(tmp_path)
         sub.undeclare()
     finally:
         client.close()
-        if proc.poll() is None:
-            proc.kill()
+        kill_running(proc)
     events = {e["event"] for e in logs(proc)}
     assert code == 0 and took < 10.0, (code, took)
     assert {"signal_received", "daemon_stopped"} <= events

@@ -29,6 +29,7 @@ from stream.sources import SimCellSource
 from stream.stages import LearnerStage
 from stream.stages.learner_stage import KEPT_EPOCHS
 from stream.window import WindowConfig
+from tests.stream.conftest import wait_for
 from wire import Batch, encode, key
 
 pytestmark = pytest.mark.integration
@@ -60,13 +61,6 @@ def start_router(endpoint: str) -> subprocess.Popen:
     )
     assert proc.stdout.readline().strip() == "up"
     return proc
-
-
-def wait_for(cond, timeout: float = 60.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while not cond() and time.monotonic() < deadline:
-        time.sleep(0.05)
-    return cond()
 
 
 def client_config(endpoint: str) -> BusConfig:

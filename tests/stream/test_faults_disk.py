@@ -8,7 +8,6 @@ writable again. Needs root (mount); skipped with the reason otherwise."""
 import json
 import signal
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -22,48 +21,10 @@ from sim_sources.streaming import StreamingConfig
 from stream.bus import BusConfig, alive_stages, free_port, open_session
 from stream.learner_core import LearnerCore, LearnerStageConfig
 from stream.sources import SimCellSource
+from tests.stream.conftest import daemon_config, kill_running, start_daemon, wait_for
 from wire import key
 
 pytestmark = pytest.mark.integration
-
-CONFIG = """
-cell = "plant"
-checkpoint_dir = "{state}"
-shutdown_timeout_s = 5.0
-on_disk_full = "{policy}"
-
-[bus]
-mode = "peer"
-listen = ["tcp/127.0.0.1:{port}"]
-multicast_scouting = false
-
-[[robot]]
-name = "{robot}"
-description = "{robot}"
-stages = ["window", "learner"]
-T_W_0 = {T_W_0}
-
-[window]
-batch_size = 10
-
-[learner]
-holdout_every = 5
-
-[learner.model]
-hidden_layers = 1
-neurons = 8
-
-[learner.continual]
-memory = 30
-batch = 10
-init = 10
-epochs_per_update = 2
-init_epochs = 5
-
-[recorder]
-path = "{dir}/plant.mcap"
-flush_interval_s = 0.2
-"""
 
 
 @pytest.fixture
@@ -93,31 +54,24 @@ def fill(directory: Path) -> Path:
     return filler
 
 
-def start(cfg: Path) -> subprocess.Popen:
-    exe = str(Path(sys.executable).with_name("robocal"))
-    return subprocess.Popen([exe, "run", "--config", str(cfg)], stderr=subprocess.PIPE, text=True)
-
-
-def wait_for(cond, timeout: float = 60.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while not cond() and time.monotonic() < deadline:
-        time.sleep(0.05)
-    return cond()
-
-
 def run_cell(tmp_path, state: Path, policy: str, fault, recover=None):
     """Start the daemon, stream a cell, inject ``fault(state)`` after the first checkpoint,
     then ``recover(state)`` (if given) and SIGTERM; returns exit code, log events, models
     seen after the fault and after recovery."""
     ds = simulate(get_scenario("paper"), 200, 21)
     robot, port = ds.meta.robot, free_port()
-    cfg = tmp_path / "robocal.toml"
-    text = CONFIG.format(
-        state=state, policy=policy, port=port, robot=robot, T_W_0=json.dumps(ds.meta.T_W_0),
-        dir=tmp_path,
-    )  # fmt: skip
-    cfg.write_text(text)
-    proc = start(cfg)
+    cfg = daemon_config(
+        tmp_path / "robocal.toml",
+        port=port,
+        T_W_0=ds.meta.T_W_0,
+        state=state,
+        robot=robot,
+        recorder=tmp_path / "plant.mcap",
+        settings=f'shutdown_timeout_s = 5.0\non_disk_full = "{policy}"',
+        epochs_per_update=2,
+        init_epochs=5,
+    )
+    proc = start_daemon(cfg)
     client = open_session(BusConfig.loopback(port, listen=False))
     models: list[float] = []
     ckpt = state / f"{robot}.checkpoint.safetensors"
@@ -155,8 +109,7 @@ def run_cell(tmp_path, state: Path, policy: str, fault, recover=None):
         if feeder.is_alive():
             feeder.join(30)
         client.close()
-        if proc.poll() is None:
-            proc.kill()
+        kill_running(proc)
     events = [json.loads(x) for x in proc.stderr.read().splitlines() if x.startswith("{")]
     return code, events, ckpt, marks, models
 

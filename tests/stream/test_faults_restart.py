@@ -5,11 +5,7 @@ batches still in flight at the kill, reported lost — none of the accepted ones
 
 import json
 import signal
-import subprocess
-import sys
 import threading
-import time
-from pathlib import Path
 
 import pytest
 
@@ -20,65 +16,29 @@ from stream.bus import BusConfig, alive_stages, free_port, open_session
 from stream.learner_core import LearnerCore, LearnerStageConfig
 from stream.sources import SimCellSource
 from stream.state import AcceptedLog
+from tests.stream.conftest import daemon_config, kill_running, start_daemon, wait_for
 from wire import Batch, decode, key
 
 pytestmark = pytest.mark.integration
-
-CONFIG = """
-cell = "plant"
-checkpoint_dir = "{dir}/state"
-shutdown_timeout_s = 8.0
-
-[bus]
-mode = "peer"
-listen = ["tcp/127.0.0.1:{port}"]
-multicast_scouting = false
-
-[[robot]]
-name = "{robot}"
-description = "{robot}"
-stages = ["window", "learner"]
-T_W_0 = {T_W_0}
-
-[window]
-batch_size = 10
-
-[learner]
-holdout_every = 5
-
-[learner.model]
-hidden_layers = 1
-neurons = {neurons}
-
-[learner.continual]
-memory = 60
-batch = 10
-init = 25
-epochs_per_update = 2
-init_epochs = {init_epochs}
-"""
-
-
-def start(cfg: Path) -> subprocess.Popen:
-    exe = str(Path(sys.executable).with_name("robocal"))
-    return subprocess.Popen([exe, "run", "--config", str(cfg)], stderr=subprocess.PIPE, text=True)
-
-
-def wait_for(cond, timeout: float = 60.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while not cond() and time.monotonic() < deadline:
-        time.sleep(0.05)
-    return cond()
 
 
 def test_kill_9_during_the_first_training_loses_no_accepted_point(tmp_path):
     ds = simulate(get_scenario("paper"), 60, 31)
     robot, port = ds.meta.robot, free_port()
     cfg = tmp_path / "robocal.toml"
-    fields = dict(dir=tmp_path, port=port, robot=robot, T_W_0=json.dumps(ds.meta.T_W_0))
-    cfg.write_text(CONFIG.format(**fields, neurons=256, init_epochs=10**6))  # trains "forever"
+    fields = dict(
+        port=port,
+        robot=robot,
+        T_W_0=ds.meta.T_W_0,
+        state=tmp_path / "state",
+        settings="shutdown_timeout_s = 8.0",
+        memory=60,
+        init=25,
+        epochs_per_update=2,
+    )
+    daemon_config(cfg, **fields, neurons=256, init_epochs=10**6)  # trains "forever"
     state = tmp_path / "state"
-    proc = start(cfg)
+    proc = start_daemon(cfg)
     client = open_session(BusConfig.loopback(port, listen=False))
     batches, models = [], []
     restarted = None
@@ -103,8 +63,8 @@ def test_kill_9_during_the_first_training_loses_no_accepted_point(tmp_path):
         window = json.loads((state / f"{robot}.window.json").read_text())
         joined = window["points"]  # batched, or pending in the window's state
 
-        cfg.write_text(CONFIG.format(**fields, neurons=8, init_epochs=5))
-        restarted = start(cfg)
+        daemon_config(cfg, **fields, neurons=8, init_epochs=5)
+        restarted = start_daemon(cfg)
         assert wait_for(lambda: len(models) >= 1, 90), "no model after the restart"
         restarted.send_signal(signal.SIGTERM)
         assert restarted.wait(20) == 0
@@ -112,9 +72,7 @@ def test_kill_9_during_the_first_training_loses_no_accepted_point(tmp_path):
             sub.undeclare()
     finally:
         client.close()
-        for p in (proc, restarted):
-            if p is not None and p.poll() is None:
-                p.kill()
+        kill_running(proc, restarted)
     events = [json.loads(x) for x in restarted.stderr.read().splitlines() if x.startswith("{")]
     replayed = [e["points"] for e in events if e["event"] == "accepted_replayed"]
     lost = sum(e["lost"] for e in events if e["event"] == "points_lost")
