@@ -17,6 +17,7 @@ points quarantined, FP = other points quarantined, withheld = updates the gate k
 
 ``--rows`` streams only the first rows in time order (the split is drawn among them);
 ``--memory``, ``--batch``, ``--init`` and ``--base`` are the continual configuration;
+``--gate-only`` runs the poisoned streams with the publish gate alone (quarantine off);
 ``--clean-only`` runs the clean pair (quarantine off / on) alone, e.g. on a scenario with a
 genuine drift (``--scenario``-generated datasets ``thermal_expansion``, ``tracker_drift``).
 """
@@ -102,6 +103,9 @@ def main() -> None:
     ap.add_argument("--base", default="auto", choices=("auto", "nominal"))
     ap.add_argument("--clean-only", action="store_true")
     ap.add_argument("--no-off", action="store_true", help="skip the runs without the defence")
+    ap.add_argument(
+        "--gate-only", action="store_true", help="only poisoned runs with the gate, no quarantine"
+    )
     args = ap.parse_args()
     torch.set_num_threads(1)
     ds = read_dataset(args.data)
@@ -116,7 +120,14 @@ def main() -> None:
         rows.append({"seed": seed, "burst_mm": mm, "defence": defence, **r})
         print(json.dumps(rows[-1]), flush=True)
 
+    gate = replace(on, quarantine=QuarantineConfig(enabled=False))
     for i, seed in enumerate(args.seeds):
+        if args.gate_only:
+            for mm in args.burst_mm:
+                rng = np.random.default_rng([seed, int(mm)])
+                burst = burst_rows(ds, args.burst_len, rng)
+                record(seed, mm, "gate", run(bumped(ds, burst, mm, rng), gate, seed, burst))
+            continue
         with_off = i == 0 and not args.no_off
         if with_off:
             record(seed, 0.0, "off", run(ds, off, seed, none))
@@ -132,8 +143,8 @@ def main() -> None:
                 record(seed, mm, "off", run(poisoned, off, seed, burst))
     clean = {(r["seed"], r["defence"]): r["test_mean_mm"] for r in rows if r["burst_mm"] == 0}
     for r in rows:
-        ref = clean.get((r["seed"], r["defence"]), clean[(r["seed"], "on")])
-        r["vs_clean"] = r["test_mean_mm"] / ref - 1.0
+        ref = clean.get((r["seed"], r["defence"]), clean.get((r["seed"], "on")))
+        r["vs_clean"] = None if ref is None else r["test_mean_mm"] / ref - 1.0
     print(json.dumps({"data": args.data, "args": vars(args), "runs": rows}, indent=1))
 
 

@@ -126,10 +126,10 @@ class QuarantineConfig:
     from their labels. Before the first model the label alone is judged, against
     ``warmup_threshold``. ``release_after`` consecutive quarantined points are taken as a
     lasting change of the cell, not a fault: the quarantine lets the shift through and follows
-    it. An update whose published model's held-out position error exceeds the last published
-    one's by more than ``publish_tolerance`` (relative) is withheld (``inf`` turns the gate
-    off); the gate waits for ``gate_min_points`` held-out points. ``enabled`` false turns the
-    quarantine off (the gate stays). Thresholds from the clean and poisoned streams of
+    it. An update whose published model's median held-out position error exceeds the last
+    published one's by more than ``publish_tolerance`` (relative) is withheld (``inf`` turns
+    the gate off); the gate waits for ``gate_min_points`` held-out points. ``enabled`` false
+    turns the quarantine off (the gate stays). Thresholds from the clean and poisoned streams of
     BENCHMARKS.md, "No poisoning"."""
 
     enabled: bool = True

@@ -52,7 +52,7 @@ from learner.snapshot import load_snapshot, snapshot_from_bytes, snapshot_to_byt
 class UpdateMetrics:
     """What one update did. Errors are position-error norms in mm: ``batch_*`` of the new
     points before training (prequential), ``train_*`` of the memory after training,
-    ``holdout_mm`` of the published model on the held-out set (NaN without one).
+    ``holdout_mm`` the published model's median on the held-out set (NaN without one).
     ``quarantined`` counts this step's points kept out; ``withheld`` says the gate kept the
     last published model."""
 

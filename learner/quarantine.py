@@ -165,15 +165,18 @@ def model_residuals(
 
 
 def holdout_mm(model: ErrorModel, X: np.ndarray, Y: np.ndarray) -> float:
-    """Mean position error (mm) of ``model`` on held-out ``X, Y``; NaN without points."""
+    """Median position error (mm) of ``model`` on held-out ``X, Y``; NaN without points. The
+    median, not the mean: a few poisoned points that reached the held-out set (quarantine off,
+    or missed) would dominate a mean and let the poisoned model pass as an improvement (a
+    20-50 mm burst, gate on the mean: 0 updates withheld; BENCHMARKS.md)."""
     if not len(X):
         return float("nan")
-    return float(np.linalg.norm((model.predict(X).gamma - Y)[:, :3], axis=1).mean() * 1e3)
+    return float(np.median(np.linalg.norm((model.predict(X).gamma - Y)[:, :3], axis=1)) * 1e3)
 
 
 def withhold(before_mm: float, after_mm: float, n_holdout: int, cfg: QuarantineConfig) -> bool:
-    """Whether the publish gate keeps the last model: its held-out error ``before_mm`` grew to
-    ``after_mm`` by more than ``publish_tolerance`` on at least ``gate_min_points`` points."""
+    """Whether the publish gate keeps the last model: its held-out error ``before_mm`` grew
+    to ``after_mm`` by more than ``publish_tolerance`` on at least ``gate_min_points`` points."""
     if n_holdout < cfg.gate_min_points:
         return False
     return bool(after_mm > before_mm * (1.0 + cfg.publish_tolerance))
