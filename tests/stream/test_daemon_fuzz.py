@@ -31,6 +31,7 @@ from stream.learner_core import LearnerStageConfig
 from stream.log import JsonLogger
 from stream.sources import SimCellSource
 from stream.window import WindowConfig
+from tests.stream.conftest import wait_for
 from wire import (
     Batch,
     DataPoint,
@@ -73,13 +74,6 @@ class Live:
     templates: dict = field(default_factory=dict)
     forged_models: list = field(default_factory=list)
     pubs: dict = field(default_factory=dict)
-
-
-def wait_for(cond, timeout=30.0):
-    deadline = time.monotonic() + timeout
-    while not cond() and time.monotonic() < deadline:
-        time.sleep(0.05)
-    return cond()
 
 
 @pytest.fixture(scope="module")
@@ -127,7 +121,7 @@ def live(tmp_path_factory):
     ]
     time.sleep(0.5)
     SimCellSource(client, CELL, robot, ds, StreamingConfig(period_s=1.0)).start()
-    assert wait_for(lambda: len(run.models) >= 1), "no model from the clean stream"
+    assert wait_for(lambda: len(run.models) >= 1, 30.0), "no model from the clean stream"
     run.templates = templates(ds, run.models[-1])
     run.forged_models = forged_models(run.models[-1], robot)
     yield run
