@@ -15,7 +15,7 @@ import rerun as rr
 
 from kinematics.model import RobotModel
 
-LINK_RGB = (236, 160, 40)
+LINK_RGB = (236, 160, 60)  # its blue keeps it apart from the error colours (blue 0)
 JOINT_RGB = (90, 90, 100)
 TOOL_RGB = (60, 120, 220)
 
