@@ -9,7 +9,8 @@ the model still predicts DESIGN.md's label, the pose error against the nominal. 
 - ``nominal``: the nominal description; the error model is the learner alone;
 - ``geometric``: a classical geometric calibration (``robocal calibrate``) of the training points;
 - ``auto``: the geometric calibration of the first ``identify_points`` points, or the nominal
-  when those points cannot identify it (the snapshot says why);
+  when those points cannot identify it or identify it only ill-conditioned (condition number
+  above :data:`AUTO_MAX_CONDITION`: poses from one region; the snapshot says why);
 - a path: a calibrated model file (``robocal calibrate --out``) or ``robocal gap``'s model file.
 
 On real UR10 series the geometric base with a residual network is the most accurate of these
@@ -52,6 +53,10 @@ from learner.features import FeatureSpec
 
 #: Points ``auto`` identifies the geometric base from (the first of the stream).
 IDENTIFY_POINTS = 200
+#: Largest condition number (unit-norm columns) of an ``auto`` base: the first points of a real
+#: stream often lie in one region, where a calibration fits them and extrapolates by mm (UR10
+#: Series A in time order: condition 3.4e3, 11 mm off on the rest against 0.74 mm nominal).
+AUTO_MAX_CONDITION = 100.0
 #: Effects a base evaluates from model features alone (others need signals a model lacks).
 _FEATURE_EFFECTS = ("geometric", "joint_compliance", "thermal_expansion", "gear_periodic")
 
@@ -137,6 +142,11 @@ def identify_base(kind: str, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray) ->
             raise
         return replace(nominal_base(spec.description), kind=kind, note=f"nominal: {exc}")
     cond = result.identifiability.condition_number
+    if kind == "auto" and cond > AUTO_MAX_CONDITION:
+        note = f"nominal: {n} points identify it with condition number {cond:.3g}"
+        return replace(
+            nominal_base(spec.description), kind=kind, note=f"{note} > {AUTO_MAX_CONDITION:g}"
+        )
     return PhysicsBase(
         kind=kind,
         description=result.description,

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from kinematics.errors import ConfigError
+from kinematics.importers.ipa import import_series
 from kinematics.model import RobotModel
 from kinematics.transforms import apply_error, pose_error
 from learner.base import identify_base, make_base, nominal_base, reidentify_frames
@@ -45,6 +46,28 @@ def test_auto_falls_back_to_nominal_when_the_points_cannot_identify(points):
     assert snapshot_from_bytes(snapshot_to_bytes(model)).base.note == base.note
     with pytest.raises(ConfigError, match="base must be one of"):
         identify_base("magic", p.spec, p.X, p.Y)
+
+
+@pytest.mark.shared_data
+def test_auto_keeps_the_nominal_when_the_first_points_lie_in_one_region(shared_data):
+    """A real stream starts in one region: a calibration of its first points fits them and
+    extrapolates by mm (UR10 Series A in time order); ``auto`` then stays on the nominal."""
+    ds = import_series(shared_data / "ur10-ipa" / "Series_A").dataset
+    p = prepare(ds, test_fraction=0.0)
+    first, rest = slice(0, 50), slice(2000, None)
+    geometric = identify_base("geometric", p.spec, p.X[first], p.Y[first])
+    nominal = RobotModel(p.spec.description)
+    assert _position_mm(p.Y[rest] - geometric.error(p.spec, p.X[rest], nominal)) > 3 * (
+        _position_mm(p.Y[rest])
+    )  # why: the region's calibration is mm off elsewhere
+    base = identify_base("auto", p.spec, p.X[first], p.Y[first])
+    assert base.kind == "auto" and base.note.startswith("nominal:"), base.note
+    assert "condition number" in base.note
+    spread = identify_base("auto", p.spec, p.X[:2000:10], p.Y[:2000:10])  # poses spread
+    assert not spread.note.startswith("nominal:"), spread.note
+    assert _position_mm(p.Y[rest] - spread.error(p.spec, p.X[rest], nominal)) < 0.7 * (
+        _position_mm(p.Y[rest])
+    )
 
 
 def test_the_model_predicts_base_plus_residual_and_its_snapshot_reproduces_it(points):
