@@ -27,6 +27,7 @@ from stream.dashboard_view import (
     open_viewer,
     pixels,
     serve_rrd,
+    stop,
 )
 
 
@@ -74,11 +75,7 @@ def main() -> int:
             viewport=(args.width, args.height),
         )
     finally:
-        server.terminate()
-        try:
-            server.wait(10)
-        except Exception:
-            server.kill()
+        stop(server)
     if check.seconds_to_data is None:
         print(f"the recording never showed ({check.console_errors[:3]})", file=sys.stderr)
         return 1

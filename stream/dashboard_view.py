@@ -12,8 +12,11 @@ browser downloads are never used). The software rasterizer (SwiftShader) stands 
 
 from __future__ import annotations
 
+import contextlib
 import io
+import os
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -125,10 +128,24 @@ def open_viewer(
 
 
 def serve_rrd(rrd: str | Path, web_port: int, grpc_port: int) -> subprocess.Popen:
-    """``rerun --serve-web`` of an .rrd file, this interpreter's rerun (the caller stops it)."""
+    """``rerun --serve-web`` of an .rrd file, this interpreter's rerun, in a process group of its
+    own (``python -m rerun`` starts the viewer binary as a child): stop it with :func:`stop`."""
     args = ["--serve-web", "--web-viewer-port", str(web_port), "--port", str(grpc_port)]
     return subprocess.Popen(
         [sys.executable, "-m", "rerun", *args, str(rrd)],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
+        start_new_session=True,
     )
+
+
+def stop(server: subprocess.Popen, timeout_s: float = 10.0) -> None:
+    """End a :func:`serve_rrd` server and its children: SIGTERM to the group, then SIGKILL to
+    whatever of it is left after ``timeout_s``."""
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(server.pid, signal.SIGTERM)
+    with contextlib.suppress(subprocess.TimeoutExpired):
+        server.wait(timeout_s)
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(server.pid, signal.SIGKILL)
+    server.wait()
