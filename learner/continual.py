@@ -38,14 +38,22 @@ import torch
 
 from kinematics.errors import DatasetError, SnapshotError
 from kinematics.model import RobotModel
-from learner.base import PhysicsBase, identify_base, nominal_base
+from learner.base import PhysicsBase, identify_base, late_auto_base, nominal_base
 from learner.config import ContinualConfig
-from learner.continual_state import STATE_SCHEMA, state_from_bytes, state_to_bytes  # noqa: F401
+from learner.continual_state import (  # noqa: F401
+    STATE_SCHEMA,
+    state_from_bytes,
+    state_path,
+    state_to_bytes,
+)
 from learner.model import MIN_CALIBRATION, ErrorModel, TrainReport
 from learner.quarantine import QuarantineState, holdout_mm, model_residuals, screen, withhold
 from learner.quarantine import state_from_dict as quarantine_from_dict
 from learner.replay import replay_strategy
 from learner.snapshot import load_snapshot, snapshot_from_bytes, snapshot_to_bytes
+
+#: Versions between tries to identify an ``auto`` base the first points left on the nominal.
+LATE_BASE_EVERY = 10
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -204,11 +212,28 @@ class ContinualLearner:
             lr=self.cfg.update_lr,
         )
         withheld, holdout_mm = self._publish_gated()
+        self._identify_late()
         new_kept = int(np.sum(keep >= len(pool_x) - len(X_new)))
         batch_err = np.linalg.norm((pred - pool_y)[-len(X_new) :, :3], axis=1)
         dt = time.perf_counter() - start
         m = self._metrics(len(X_new), new_kept, report, dt, batch_err)
         return replace(m, withheld=withheld, holdout_mm=holdout_mm, **out)
+
+    def _identify_late(self) -> None:
+        """Every ``LATE_BASE_EVERY`` versions, the ``auto`` base the first points could not give
+        is identified from the memory; the model retrained on it is published if it is better."""
+        if self.version % LATE_BASE_EVERY or len(self._cal_x) < MIN_CALIBRATION:
+            return
+        base = late_auto_base(self.base, self.trained.spec, self._mem_x, self._mem_y)
+        if base is None:
+            return
+        new, cal = _copy(self.trained), (self._cal_x, self._cal_y)
+        new.base = base
+        new.fit(self._mem_x, self._mem_y, *cal, max_epochs=self.cfg.init_epochs, val_fraction=0.0)
+        if holdout_mm(new, *cal) < holdout_mm(self.model, *cal):
+            self.trained, self.model = new, _copy(new)
+            self.model.interval_scale = self.model.interval_scale * np.exp(self.aci_log_scale)
+            self.version += 1
 
     def _publish_gated(self) -> tuple[bool, float]:
         """Publish the update unless the gate withholds it (the held-out error grew beyond the
@@ -364,12 +389,6 @@ class ContinualLearner:
 def _copy(model: ErrorModel) -> ErrorModel:
     """An independent copy of ``model`` (through its snapshot: weights, scalers, base)."""
     return snapshot_from_bytes(snapshot_to_bytes(model))
-
-
-def state_path(model_path: str | Path) -> Path:
-    """The continual state (memory, both models, counters) written beside a model file."""
-    stem = Path(model_path).with_suffix("")
-    return stem.with_name(stem.name + ".state.safetensors")
 
 
 def load_learner(model_path: str | Path, cfg: ContinualConfig) -> ContinualLearner:

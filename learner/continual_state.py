@@ -6,6 +6,7 @@ Nothing is pickled. :meth:`learner.continual.ContinualLearner.state_dict` builds
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 from safetensors import SafetensorError
@@ -14,6 +15,13 @@ from safetensors.numpy import save as np_save
 
 from kinematics.errors import SnapshotError
 from learner.snapshot import read_metadata
+
+
+def state_path(model_path: str | Path) -> Path:
+    """The continual state (memory, both models, counters) written beside a model file."""
+    stem = Path(model_path).with_suffix("")
+    return stem.with_name(stem.name + ".state.safetensors")
+
 
 STATE_SCHEMA = "robocal.continual"
 
