@@ -220,8 +220,7 @@ class ContinualLearner:
         return replace(m, withheld=withheld, holdout_mm=holdout_mm, **out)
 
     def _identify_late(self) -> None:
-        """Every ``LATE_BASE_EVERY`` versions, the ``auto`` base the first points could not give
-        is identified from the memory; the model retrained on it is published if it is better."""
+        """Retrain on the ``auto`` base the memory identifies; publish the model if better."""
         if self.version % LATE_BASE_EVERY or len(self._cal_x) < MIN_CALIBRATION:
             return
         base = late_auto_base(self.base, self.trained.spec, self._mem_x, self._mem_y)
