@@ -98,8 +98,10 @@ def test_timeout_stops_a_running_trial(arrays, tmp_path):
     cfg = HpoConfig(trials=5, folds=2, max_epochs=100_000, min_epochs=1, trial_work=float("inf"))
     study = make_study(open_storage(tmp_path / "j.journal"), "s", seed=0, max_resource=cfg.max_step)
     start = time.monotonic()
-    objective = cv_objective(spec, X, Y, TINY, cfg, deadline=start + 1.0)
-    run_trials(study, objective, cfg.trials, timeout_s=1.0)
+    # 0.1 s: early stopping ends a trial of these 60 points after ~150 epochs, about 1 s on a
+    # quiet machine, so a longer deadline can let the first trial complete
+    objective = cv_objective(spec, X, Y, TINY, cfg, deadline=start + 0.1)
+    run_trials(study, objective, cfg.trials, timeout_s=0.1)
     assert time.monotonic() - start < 10.0  # 100,000 epochs would take hours
     assert [t.state for t in study.trials] == [TrialState.PRUNED]
 
