@@ -31,6 +31,7 @@ from sim_sources.program import (
     ProgramConfig,
     measurable,
     sample_targets,
+    visit_schedule,
 )
 
 #: The order the poses are visited in within a cycle (ISO 9283 clause 7.2.1).
@@ -171,10 +172,7 @@ def make_cube_program(
     times = np.empty((n, 5))
     t, previous = 0.0, q_pre[0]
     for k in range(n):
-        travel = np.max(np.abs(q_pre[k] - previous)) / config.joint_speed_rad_s + 0.5
-        t_arrive = t + travel + config.approach_time_s
-        t_settled = t_arrive + config.settle_s
-        times[k] = (t, t + travel, t_arrive, t_settled, t_settled + config.measure_s)
+        times[k] = visit_schedule(t, previous, q_pre[k], config)
         t, previous = times[k, 4], q[k]
     return Program(
         q_pre=q_pre,

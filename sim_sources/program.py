@@ -222,6 +222,17 @@ def balanced_levels(
     return rng.permutation(np.repeat(np.asarray(levels, dtype=float), counts))
 
 
+def visit_schedule(
+    t: float, q_from: np.ndarray, q_pre: np.ndarray, config: ProgramConfig
+) -> tuple[float, float, float, float, float]:
+    """Depart, pre-pose, arrive, settled and leave times (s) of one visit leaving at ``t``
+    from joints ``q_from`` (rad) for the pre-pose ``q_pre``: the slowest joint sets the travel."""
+    travel = np.max(np.abs(q_pre - q_from)) / config.joint_speed_rad_s + 0.5
+    t_arrive = t + travel + config.approach_time_s
+    t_settled = t_arrive + config.settle_s
+    return (t, t + travel, t_arrive, t_settled, t_settled + config.measure_s)
+
+
 def make_program(
     model: RobotModel,
     n: int,
@@ -260,13 +271,8 @@ def make_program(
             heating = config.warm_up_heating if warm else 0.0
             phases.append(Phase("warm_up" if warm else "cool_down", t, t + length, heating))
             t = block_start = t + length
-        travel = np.max(np.abs(q_pre[k] - previous)) / config.joint_speed_rad_s + 0.5
-        t_pre = t + travel
-        t_arrive = t_pre + config.approach_time_s
-        t_settled = t_arrive + config.settle_s
-        t_leave = t_settled + config.measure_s
-        times[k] = (t, t_pre, t_arrive, t_settled, t_leave)
-        t, previous = t_leave, q[k]
+        times[k] = visit_schedule(t, previous, q_pre[k], config)
+        t, previous = times[k, 4], q[k]
     phases.append(Phase("measure", block_start, t, config.measure_heating))
     return Program(
         q_pre=q_pre,
