@@ -126,6 +126,7 @@ class McapRecorder:
         self._metadata = tuple(metadata)
         self.paths: list[Path] = []
         self.count = 0
+        self.unflushed = 0  # messages added since the last flush (lost if the part is cut)
         self._open()
 
     def _open(self) -> None:
@@ -191,6 +192,7 @@ class McapRecorder:
             sequence=self.count,
         )
         self.count += 1
+        self.unflushed += 1
         self.maybe_flush()
 
     def _split_due(self) -> bool:
@@ -206,7 +208,7 @@ class McapRecorder:
     def flush(self) -> None:
         """Finish the open chunk and write it out (readable after a crash)."""
         self._writer.flush()
-        self._last_flush = time.monotonic()
+        self._last_flush, self.unflushed = time.monotonic(), 0
 
     def _finish(self) -> None:
         if not self._file.closed:
@@ -216,6 +218,27 @@ class McapRecorder:
     def close(self) -> None:
         """Write the summary and footer and close the file."""
         self._finish()
+
+    def abandon(self) -> int:
+        """Close the part as it is, without the footer a full disk cannot take: it stays
+        readable up to its last flushed chunk (:class:`RecordingReader`). The messages added
+        since that flush are lost: their count."""
+        with contextlib.suppress(OSError):
+            self._file.close()
+        lost, self.unflushed = self.unflushed, 0
+        return lost
+
+    def reopen(self) -> None:
+        """Start a new part after :meth:`abandon`; a part that cannot be started is removed
+        (``OSError`` while the disk is still full)."""
+        try:
+            self._open()
+        except OSError:
+            if self.path not in self.paths:  # created, never started: not a recording
+                with contextlib.suppress(OSError):
+                    self._file.close()
+                    self.path.unlink()
+            raise
 
 
 class RecordingReader:

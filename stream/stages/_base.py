@@ -39,7 +39,7 @@ MAX_MODEL_BYTES = 64 * 2**20
 #: What ``on_disk_full`` may say: end the stage (the daemon exits 2) or wait until writable.
 DISK_FULL_POLICIES = ("stop", "wait")
 #: OSErrors that waiting can cure (space or permission given back), the rest are fatal at once.
-_WAITABLE = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM}
+WAITABLE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM}
 
 
 def is_fatal(exc: BaseException) -> bool:
@@ -98,7 +98,7 @@ class Stage:
             try:
                 write()
             except OSError as exc:
-                if self.on_disk_full != "wait" or exc.errno not in _WAITABLE:
+                if self.on_disk_full != "wait" or exc.errno not in WAITABLE_ERRNOS:
                     raise
                 if self._closing.is_set():
                     raise

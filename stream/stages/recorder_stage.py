@@ -6,6 +6,7 @@ per robot: its key name, description name and hash, joints, and the frames known
 from __future__ import annotations
 
 import json
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Protocol
@@ -17,7 +18,8 @@ from kinematics.description import load_description
 from stream.bus import Received
 from stream.log import JsonLogger
 from stream.mcap_io import McapRecorder
-from stream.stages._base import Stage
+from stream.stages._base import WAITABLE_ERRNOS, Stage
+from stream.state import describe_os_error
 from stream.trust import description_hash
 
 #: The metadata record of one robot of the cell.
@@ -71,6 +73,8 @@ class RecorderStage(Stage):
         robots: Sequence[RobotLike] = (),
     ) -> None:
         super().__init__(session, cell, "all", logger)
+        self._waiting_since: float | None = None  # the disk was full or read-only since (s)
+        self._last_try = 0.0
         self.recorder = McapRecorder(
             path,
             flush_interval_s,
@@ -83,11 +87,52 @@ class RecorderStage(Stage):
     def handle(self, item: Received) -> None:
         if "/alive/" in item.key:
             return
-        self.recorder.add(item.key, item.payload, int(item.received_t * 1e9))
-        self.counter.accept()
+        if self._waiting_since is None:
+            try:
+                self.recorder.add(item.key, item.payload, int(item.received_t * 1e9))
+                self.counter.accept()
+                return
+            except OSError as exc:
+                self._unwritable(exc)
+        self.counter.drop("unwritable")
 
     def on_idle(self, now: float) -> None:
-        self.recorder.maybe_flush()
+        if self._waiting_since is None:
+            try:
+                self.recorder.maybe_flush()
+            except OSError as exc:
+                self._unwritable(exc)
+        elif now - self._last_try >= self.retry_s:
+            self._last_try = now
+            try:
+                self.recorder.reopen()
+            except OSError:
+                return
+            self.log.info(
+                "recording_resumed",
+                stage=self.name,
+                path=str(self.recorder.path),
+                dropped=self.counter.dropped.get("unwritable", 0),
+            )
+            self._waiting_since = None
+
+    def _unwritable(self, exc: OSError) -> None:
+        """A full or read-only disk: fatal (``on_disk_full = "stop"``), or close the part as it
+        is and count what arrives as ``unwritable`` until a new part can be started."""
+        if self.on_disk_full != "wait" or exc.errno not in WAITABLE_ERRNOS:
+            raise exc
+        lost = self.recorder.abandon()
+        self.counter.drop("unwritable", lost)  # accepted, then lost with the unflushed chunk
+        self._waiting_since = self._last_try = time.time()
+        self.log.log(
+            "error",
+            "recording_unwritable",
+            stage=self.name,
+            path=str(self.recorder.path),
+            cause=describe_os_error(exc),
+            lost_unflushed=lost,
+            action="waiting, a new part once writable",
+        )
 
     def finish(self) -> None:
         self.recorder.close()

@@ -44,11 +44,10 @@ def small_fs(tmp_path):
 def fill(directory: Path) -> Path:
     """Fill the file system of ``directory`` to the last byte; the filler file."""
     filler = directory / "filler"
-    with filler.open("wb") as f:
+    with filler.open("wb", buffering=0) as f:  # unbuffered: closing never writes more
         try:
             while True:
-                f.write(b"\0" * 65536)
-                f.flush()
+                f.write(b"\0" * 4096)
         except OSError:
             pass
     return filler
