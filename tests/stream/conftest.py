@@ -140,3 +140,29 @@ def kill_running(*procs: subprocess.Popen | None) -> None:
     for p in procs:
         if p is not None and p.poll() is None:
             p.kill()
+
+
+@pytest.fixture
+def small_fs(tmp_path):
+    """A 2 MB tmpfs at ``tmp_path/state`` (unmounted afterwards)."""
+    mnt = tmp_path / "state"
+    mnt.mkdir()
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mnt)], capture_output=True
+    )
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs (needs root): {done.stderr.decode().strip()}")
+    yield mnt
+    subprocess.run(["umount", "-l", str(mnt)], check=False)
+
+
+def fill(directory: Path) -> Path:
+    """Fill the file system of ``directory`` to the last byte; the filler file."""
+    filler = directory / "filler"
+    with filler.open("wb", buffering=0) as f:  # unbuffered: closing never writes more
+        try:
+            while True:
+                f.write(b"\0" * 4096)
+        except OSError:
+            pass
+    return filler

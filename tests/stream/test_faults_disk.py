@@ -21,36 +21,10 @@ from sim_sources.streaming import StreamingConfig
 from stream.bus import BusConfig, alive_stages, free_port, open_session
 from stream.learner_core import LearnerCore, LearnerStageConfig
 from stream.sources import SimCellSource
-from tests.stream.conftest import daemon_config, kill_running, start_daemon, wait_for
+from tests.stream.conftest import daemon_config, fill, kill_running, start_daemon, wait_for
 from wire import key
 
 pytestmark = pytest.mark.integration
-
-
-@pytest.fixture
-def small_fs(tmp_path):
-    """A 2 MB tmpfs at ``tmp_path/state`` (unmounted afterwards)."""
-    mnt = tmp_path / "state"
-    mnt.mkdir()
-    done = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mnt)], capture_output=True
-    )
-    if done.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs (needs root): {done.stderr.decode().strip()}")
-    yield mnt
-    subprocess.run(["umount", "-l", str(mnt)], check=False)
-
-
-def fill(directory: Path) -> Path:
-    """Fill the file system of ``directory`` to the last byte; the filler file."""
-    filler = directory / "filler"
-    with filler.open("wb", buffering=0) as f:  # unbuffered: closing never writes more
-        try:
-            while True:
-                f.write(b"\0" * 4096)
-        except OSError:
-            pass
-    return filler
 
 
 def run_cell(tmp_path, state: Path, policy: str, fault, recover=None):

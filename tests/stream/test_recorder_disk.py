@@ -1,9 +1,8 @@
 """The recorder on a full disk with ``on_disk_full = "wait"`` (issue 19): the part being
 written is closed as it is (readable up to its last flush), what arrives meanwhile is counted
-``unwritable``, and once the disk has room a new part takes the later messages. A 1 MB tmpfs
+``unwritable``, and once the disk has room a new part takes the later messages. A 2 MB tmpfs
 on a real Zenoh loopback; needs root (mount), skipped with the reason otherwise."""
 
-import subprocess
 import time
 
 import pytest
@@ -11,28 +10,14 @@ import pytest
 from stream.bus import BusConfig, free_port, open_session
 from stream.mcap_io import RecordingReader
 from stream.stages import stage_class
-from tests.stream.conftest import wait_for
-from tests.stream.test_faults_disk import fill
+from tests.stream.conftest import fill, wait_for
 from wire import JointSample, encode, key
 
 pytestmark = pytest.mark.integration
 CELL = "disk"
 
 
-@pytest.fixture
-def tiny_fs(tmp_path):
-    mnt = tmp_path / "rec"
-    mnt.mkdir()
-    done = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(mnt)], capture_output=True
-    )
-    if done.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs (needs root): {done.stderr.decode().strip()}")
-    yield mnt
-    subprocess.run(["umount", "-l", str(mnt)], check=False)
-
-
-def test_recorder_waits_on_a_full_disk_and_resumes_in_a_new_part(tiny_fs):
+def test_recorder_waits_on_a_full_disk_and_resumes_in_a_new_part(small_fs):
     port = free_port()
     server = open_session(BusConfig.loopback(port, listen=True))
     client = open_session(BusConfig.loopback(port, listen=False))
@@ -55,11 +40,11 @@ def test_recorder_waits_on_a_full_disk_and_resumes_in_a_new_part(tiny_fs):
 
     try:
         time.sleep(0.5)
-        stage = stage_class("recorder")(server, CELL, tiny_fs / "rec.mcap", 0.1)
+        stage = stage_class("recorder")(server, CELL, small_fs / "rec.mcap", 0.1)
         stage.on_disk_full, stage.retry_s = "wait", 0.2
         assert send_until(lambda: stage.counter.accepted >= 50)
         time.sleep(0.5)  # flushed
-        filler = fill(tiny_fs)
+        filler = fill(small_fs)
         while not stage.counter.dropped.get("unwritable"):
             send(200)
             time.sleep(0.2)
