@@ -73,8 +73,8 @@ class RecorderStage(Stage):
         robots: Sequence[RobotLike] = (),
     ) -> None:
         super().__init__(session, cell, "all", logger)
-        self._waiting_since: float | None = None  # the disk was full or read-only since (s)
-        self._last_try = 0.0
+        self._waiting = False  # the disk was full or read-only: a new part is due
+        self._last_try = 0.0  # when a new part was last tried (s)
         self.recorder = McapRecorder(
             path,
             flush_interval_s,
@@ -87,7 +87,7 @@ class RecorderStage(Stage):
     def handle(self, item: Received) -> None:
         if "/alive/" in item.key:
             return
-        if self._waiting_since is None:
+        if not self._waiting:
             try:
                 self.recorder.add(item.key, item.payload, int(item.received_t * 1e9))
                 self.counter.accept()
@@ -97,7 +97,7 @@ class RecorderStage(Stage):
         self.counter.drop("unwritable")
 
     def on_idle(self, now: float) -> None:
-        if self._waiting_since is None:
+        if not self._waiting:
             try:
                 self.recorder.maybe_flush()
             except OSError as exc:
@@ -114,7 +114,7 @@ class RecorderStage(Stage):
                 path=str(self.recorder.path),
                 dropped=self.counter.dropped.get("unwritable", 0),
             )
-            self._waiting_since = None
+            self._waiting = False
 
     def _unwritable(self, exc: OSError) -> None:
         """A full or read-only disk: fatal (``on_disk_full = "stop"``), or close the part as it
@@ -123,7 +123,7 @@ class RecorderStage(Stage):
             raise exc
         lost = self.recorder.abandon()
         self.counter.drop("unwritable", lost)  # accepted, then lost with the unflushed chunk
-        self._waiting_since = self._last_try = time.time()
+        self._waiting, self._last_try = True, time.time()
         self.log.log(
             "error",
             "recording_unwritable",
