@@ -30,49 +30,13 @@ from kinematics.description import description_to_toml, load_description
 from learner.snapshot import snapshot_from_bytes
 from learner.workflow import evaluate_on_dataset
 from stream.bus import BusConfig, free_port, open_session
+from stream.config_render import loopback_config, write_config
 from wire import Diagnostics, Metrics, decode, decode_model, key
 
 ROBOCAL = str(Path(sys.executable).with_name("robocal"))
 HERE = Path(__file__).resolve().parents[1]
 CELL, ROBOT, HOLDOUT, BATCH = "bench", "ur10", 10, 100
 STALL_S = 300.0  # no batch learned for this long (s): the stream is over
-
-CONFIG = """
-cell = "{cell}"
-torch_threads = 1
-shutdown_timeout_s = 30.0
-
-[bus]
-mode = "peer"
-listen = ["tcp/127.0.0.1:{port}"]
-multicast_scouting = false
-
-[[robot]]
-name = "{robot}"
-description = "{description}"
-stages = ["window", "learner"]
-
-[window]
-batch_size = {batch}
-
-[learner]
-holdout_every = {holdout}
-seed = 0
-
-[learner.continual]
-memory = {memory}
-batch = {train_batch}
-init = {train_batch}
-base = "{base}"
-
-[[sources]]
-kind = "dataset"
-path = "{data}"
-speed = {speed}
-period_s = 1.0          # Series A's export has no usable time (it goes back): one visit per s
-joint_rate_hz = 20.0
-temperature_rate_hz = 2.0
-"""
 
 
 def run(cmd: list[str]) -> dict:
@@ -137,22 +101,36 @@ def streamed(
     data: Path, test: Path, description: Path, n_batches: int, args, out: Path
 ) -> tuple[dict, float, dict]:
     port = free_port()
-    cfg = out / "robocal.toml"
-    cfg.write_text(
-        CONFIG.format(
-            cell=CELL,
-            port=port,
-            robot=ROBOT,
-            batch=BATCH,
-            holdout=HOLDOUT,
-            memory=args.memory,
-            train_batch=BATCH - BATCH // HOLDOUT,
-            data=data,
-            speed=args.speed,
-            description=description,
-            base=args.base,
-        )
+    robot = {"name": ROBOT, "description": str(description), "stages": ["window", "learner"]}
+    train_batch = BATCH - BATCH // HOLDOUT
+    source = {
+        "kind": "dataset",
+        "path": str(data),
+        "speed": args.speed,
+        "period_s": 1.0,  # Series A's export has no usable time (it goes back): one visit per s
+        "joint_rate_hz": 20.0,
+        "temperature_rate_hz": 2.0,
+    }
+    raw = loopback_config(
+        CELL,
+        port,
+        robot,
+        torch_threads=1,
+        shutdown_timeout_s=30.0,
+        window={"batch_size": BATCH},
+        learner={
+            "holdout_every": HOLDOUT,
+            "seed": 0,
+            "continual": {
+                "memory": args.memory,
+                "batch": train_batch,
+                "init": train_batch,
+                "base": args.base,
+            },
+        },
+        sources=[source],
     )
+    cfg = write_config(out / "robocal.toml", raw)
     client = open_session(BusConfig.loopback(port, listen=False))
     metrics, models, diags = [], [], {}
     subs = [

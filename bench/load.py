@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from stream.bus import BusConfig, alive_stages, free_port, open_session, publisher
+from stream.config_render import loopback_config, write_config
 from wire import (
     Diagnostics,
     JointSample,
@@ -37,40 +38,32 @@ from wire import (
 
 ROBOT = "fanuc_m900ib700"
 LINE_HZ = {"joints": 125.0, "tracker": 1.0, "temperature": 1.0}
-CONFIG = """
-cell = "load"
-checkpoint_dir = "{dir}/state"
-shutdown_timeout_s = 10.0
 
-[bus]
-mode = "peer"
-listen = ["tcp/127.0.0.1:{port}"]
-multicast_scouting = false
 
-[[robot]]
-name = "{robot}"
-description = "{robot}"
-stages = ["window", "learner"]
-{t_w_0}
-[window]
-batch_size = 20
-require_temperatures = false
-
-[learner.model]
-hidden_layers = 1
-neurons = 16
-
-[learner.continual]
-memory = 100
-batch = 20
-init = 20
-epochs_per_update = 3
-init_epochs = 10
-
-[recorder]
-path = "{dir}/load.mcap"
-flush_interval_s = 1.0
-"""
+def config(workdir: Path, port: int, t_w_0=None) -> dict:
+    """The daemon's config: window and a small learner for ``ROBOT``, a recorder in ``workdir``."""
+    robot = {"name": ROBOT, "description": ROBOT, "stages": ["window", "learner"]}
+    if t_w_0 is not None:
+        robot["T_W_0"] = np.asarray(t_w_0, dtype=float).tolist()
+    return loopback_config(
+        "load",
+        port,
+        robot,
+        checkpoint_dir=f"{workdir}/state",
+        shutdown_timeout_s=10.0,
+        window={"batch_size": 20, "require_temperatures": False},
+        learner={
+            "model": {"hidden_layers": 1, "neurons": 16},
+            "continual": {
+                "memory": 100,
+                "batch": 20,
+                "init": 20,
+                "epochs_per_update": 3,
+                "init_epochs": 10,
+            },
+        },
+        recorder={"path": f"{workdir}/load.mcap", "flush_interval_s": 1.0},
+    )
 
 
 def proc_status(pid: int) -> dict[str, float]:
@@ -91,9 +84,7 @@ class Daemon:
 
     def __init__(self, workdir: Path, t_w_0=None) -> None:
         self.port = free_port()
-        cfg = workdir / "robocal.toml"
-        frame = "" if t_w_0 is None else f"T_W_0 = {json.dumps(np.asarray(t_w_0).tolist())}\n"
-        cfg.write_text(CONFIG.format(dir=workdir, port=self.port, robot=ROBOT, t_w_0=frame))
+        cfg = write_config(workdir / "robocal.toml", config(workdir, self.port, t_w_0))
         self.log = (workdir / "daemon.jsonl").open("w")
         exe = str(Path(sys.executable).with_name("robocal"))
         self.proc = subprocess.Popen([exe, "run", "--config", str(cfg)], stderr=self.log)

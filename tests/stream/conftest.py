@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 import time
+import tomllib
 from collections.abc import Callable
 from pathlib import Path
 
@@ -19,6 +19,7 @@ from learner.config import ModelConfig, TrainConfig
 from learner.features import feature_spec
 from learner.model import ErrorModel
 from stream.bus import alive_stages
+from stream.config_render import loopback_config, write_config
 
 Labels = Callable[[np.ndarray], np.ndarray]
 
@@ -44,37 +45,6 @@ def train_fanuc() -> Callable[[int, ModelConfig, int, Labels], tuple]:
     return train
 
 
-#: A ``robocal run`` config: cell "plant", one robot's window and learner on loopback ``port``.
-DAEMON_TOML = """
-cell = "plant"
-checkpoint_dir = "{state}"
-{settings}
-[bus]
-mode = "peer"
-listen = ["tcp/127.0.0.1:{port}"]
-multicast_scouting = false
-
-[[robot]]
-name = "{robot}"
-description = "{robot}"
-stages = ["window", "learner"]
-T_W_0 = {T_W_0}
-
-[window]
-batch_size = {batch_size}
-
-[learner]
-holdout_every = 5
-
-[learner.model]
-hidden_layers = 1
-neurons = {neurons}
-
-[learner.continual]
-{continual}
-"""
-
-
 def daemon_config(
     path: Path,
     *,
@@ -88,24 +58,33 @@ def daemon_config(
     neurons: int = 8,
     **continual: int,
 ) -> Path:
-    """Write a ``robocal run`` config to ``path`` (checkpoints in ``state``; top-level
-    ``settings`` lines; an MCAP recorder at ``recorder`` when given; ``[learner.continual]``
-    memory 30, batch 10, init 10, 3 epochs per update and 10 initial unless overridden)."""
+    """Write a ``robocal run`` config to ``path``: cell "plant", one robot's window and learner
+    on loopback ``port`` (checkpoints in ``state``; top-level ``settings`` TOML lines; an MCAP
+    recorder at ``recorder`` when given; ``[learner.continual]`` memory 30, batch 10, init 10,
+    3 epochs per update and 10 initial unless overridden)."""
     cont = {"memory": 30, "batch": 10, "init": 10, "epochs_per_update": 3, "init_epochs": 10}
-    text = DAEMON_TOML.format(
-        state=state,
-        settings=settings,
-        port=port,
-        robot=robot,
-        T_W_0=json.dumps(T_W_0),
-        batch_size=batch_size,
-        neurons=neurons,
-        continual="\n".join(f"{k} = {v}" for k, v in (cont | continual).items()),
+    robot_table = {
+        "name": robot,
+        "description": robot,
+        "stages": ["window", "learner"],
+        "T_W_0": np.asarray(T_W_0, dtype=float).tolist(),
+    }
+    raw = loopback_config(
+        "plant",
+        port,
+        robot_table,
+        checkpoint_dir=str(state),
+        **tomllib.loads(settings),
+        window={"batch_size": batch_size},
+        learner={
+            "holdout_every": 5,
+            "model": {"hidden_layers": 1, "neurons": neurons},
+            "continual": cont | continual,
+        },
     )
     if recorder is not None:
-        text += f'\n[recorder]\npath = "{recorder}"\nflush_interval_s = 0.2\n'
-    path.write_text(text)
-    return path
+        raw["recorder"] = {"path": str(recorder), "flush_interval_s": 0.2}
+    return write_config(path, raw)
 
 
 def start_daemon(config: Path) -> subprocess.Popen:

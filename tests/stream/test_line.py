@@ -26,6 +26,7 @@ from sim_sources.streaming import StreamingConfig, cell_samples
 from stream.bus import BusConfig, TlsConfig, alive_stages, free_port, open_session
 from stream.compensation import CompensationReply, CompensationRequest
 from stream.config import config_from_dict, load_config
+from stream.config_render import loopback_config, write_config
 from stream.daemon import Daemon
 from stream.log import JsonLogger
 from stream.router import open_router, router_config
@@ -179,21 +180,18 @@ def test_two_robot_line_end_to_end_over_tls(tmp_path):
         assert (tmp_path / f"line_{r}.rrd").stat().st_size > 0
 
 
-def two_robots(tmp_path: Path, r2_description: str) -> str:
-    return (
-        f'cell = "line"\ncheckpoint_dir = "{tmp_path}"\n'
-        f'[bus]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\nmulticast_scouting = false\n'
-        f'[[robot]]\nname = "r1"\ndescription = "fanuc_m900ib700"\n'
-        f'[[robot]]\nname = "r2"\ndescription = "{r2_description}"\n'
-    )
+def two_robots(tmp_path: Path, r2_description: str) -> dict:
+    """A loopback config of robots r1 (the Fanuc) and r2 (``r2_description``), state in tmp."""
+    r1 = {"name": "r1", "description": "fanuc_m900ib700"}
+    r2 = {"name": "r2", "description": r2_description}
+    return loopback_config("line", free_port(), r1, r2, checkpoint_dir=str(tmp_path))
 
 
 def test_a_robot_that_cannot_start_stops_the_daemon_with_exit_2_and_one_line(tmp_path):
     """The second robot's checkpoint is corrupt, found after the first robot's stages are
     open: they close again, the bus closes, one line, exit 2, no hang."""
     (tmp_path / "r2.checkpoint.safetensors").write_bytes(b"not a checkpoint")
-    cfg = tmp_path / "line.toml"
-    cfg.write_text(two_robots(tmp_path, "fanuc_m900ib700"))
+    cfg = write_config(tmp_path / "line.toml", two_robots(tmp_path, "fanuc_m900ib700"))
     proc = subprocess.Popen(
         [ROBOCAL, "run", "--config", str(cfg)], stderr=subprocess.PIPE, text=True
     )
@@ -209,9 +207,7 @@ def test_a_robot_that_cannot_start_stops_the_daemon_with_exit_2_and_one_line(tmp
 
 
 def test_a_missing_description_is_refused_before_anything_opens(tmp_path):
-    daemon = Daemon(
-        config_from_dict(tomllib.loads(two_robots(tmp_path, str(tmp_path / "no.toml"))))
-    )
+    daemon = Daemon(config_from_dict(two_robots(tmp_path, str(tmp_path / "no.toml"))))
     with pytest.raises(RobocalError, match="no.toml"):
         daemon.start()
     assert daemon.session is None and daemon.stages == []
