@@ -174,15 +174,11 @@ def make_cube_program(
     for k in range(n):
         times[k] = visit_schedule(t, previous, q_pre[k], config)
         t, previous = times[k, 4], q[k]
-    return Program(
-        q_pre=q_pre,
-        q=q,
-        approach=approach,
-        t_depart_s=times[:, 0],
-        t_pre_s=times[:, 1],
-        t_arrive_s=times[:, 2],
-        t_settled_s=times[:, 3],
-        t_leave_s=times[:, 4],
+    return Program.scheduled(
+        q_pre,
+        q,
+        approach,
+        times,
         payload_kg=np.full(n, config.payload_levels_kg[0]),
         air_spring_n=np.full(n, config.air_spring_levels_n[0]),
         phases=(Phase("measure", 0.0, t, config.measure_heating),),

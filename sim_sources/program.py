@@ -147,6 +147,37 @@ class Program:
     phases: tuple[Phase, ...]
     info: dict = field(default_factory=dict)
 
+    @classmethod
+    def scheduled(
+        cls,
+        q_pre: np.ndarray,
+        q: np.ndarray,
+        approach: np.ndarray,
+        times: np.ndarray,
+        *,
+        payload_kg: np.ndarray,
+        air_spring_n: np.ndarray,
+        phases: tuple[Phase, ...],
+        info: dict | None = None,
+    ) -> Program:
+        """A program whose visits' depart, pre-pose, arrive, settled and leave times (s) are
+        the columns of ``times`` (N, 5), as :func:`visit_schedule` gives them."""
+        t_depart, t_pre, t_arrive, t_settled, t_leave = times.T
+        return cls(
+            q_pre=q_pre,
+            q=q,
+            approach=approach,
+            t_depart_s=t_depart,
+            t_pre_s=t_pre,
+            t_arrive_s=t_arrive,
+            t_settled_s=t_settled,
+            t_leave_s=t_leave,
+            payload_kg=payload_kg,
+            air_spring_n=air_spring_n,
+            phases=phases,
+            info=info or {},
+        )
+
     def __len__(self) -> int:
         return int(self.q.shape[0])
 
@@ -274,16 +305,6 @@ def make_program(
         times[k] = visit_schedule(t, previous, q_pre[k], config)
         t, previous = times[k, 4], q[k]
     phases.append(Phase("measure", block_start, t, config.measure_heating))
-    return Program(
-        q_pre=q_pre,
-        q=q,
-        approach=approach,
-        t_depart_s=times[:, 0],
-        t_pre_s=times[:, 1],
-        t_arrive_s=times[:, 2],
-        t_settled_s=times[:, 3],
-        t_leave_s=times[:, 4],
-        payload_kg=payload,
-        air_spring_n=air,
-        phases=tuple(phases),
+    return Program.scheduled(
+        q_pre, q, approach, times, payload_kg=payload, air_spring_n=air, phases=tuple(phases)
     )
