@@ -44,6 +44,7 @@ __all__ = [
     "Metrics",
     "ModelHeader",
     "RejectedMessageError",
+    "Stamped",
     "TemperatureSample",
     "TrackerSample",
     "check_count",
@@ -106,39 +107,45 @@ def split_key(k: str) -> tuple[str, str, str]:
 
 
 @dataclass(frozen=True, kw_only=True)
-class JointSample:
+class Stamped:
+    """What every source sample and data point carries: the source's sequence number ``seq``
+    and the source time ``t`` (s); ``check`` bounds both."""
+
+    seq: int
+    t: float
+
+    def check(self) -> None:
+        check_count("seq", self.seq)
+        _check_time(self.t)
+
+
+@dataclass(frozen=True, kw_only=True)
+class JointSample(Stamped):
     """Controller joint angles ``q`` (rad) and optional secondary encoders ``qs`` at time ``t``."""
 
     SCHEMA: ClassVar[str] = "robocal.joints"
-    seq: int
-    t: float
     q: tuple[float, ...]
     qs: tuple[float, ...] | None = None
 
     def check(self) -> None:
-        _finite_seq_time(self)
+        super().check()
         check_finite("q", self.q, JOINT_LIMIT_RAD)
         if self.qs is not None:
             check_finite("qs", self.qs, JOINT_LIMIT_RAD)
-            if len(self.qs) != len(self.q):
-                raise RejectedMessageError(
-                    "joint_count", f"{len(self.qs)} secondary encoders for {len(self.q)} joints"
-                )
+            _same_length(self.qs, self.q, "{} secondary encoders for {} joints")
 
 
 @dataclass(frozen=True, kw_only=True)
-class TrackerSample:
+class TrackerSample(Stamped):
     """A measured probe pose (m, unit quaternion) in ``frame`` (``"base"`` or ``"tracker"``)."""
 
     SCHEMA: ClassVar[str] = "robocal.tracker"
-    seq: int
-    t: float
     xyz: tuple[float, float, float]
     quat: tuple[float, float, float, float]
     frame: str = "base"
 
     def check(self) -> None:
-        _finite_seq_time(self)
+        super().check()
         check_finite("xyz", self.xyz, POSITION_LIMIT_M, length=3)
         check_finite("quat", self.quat, 10.0, length=4)
         norm = math.sqrt(sum(v * v for v in self.quat))
@@ -151,12 +158,10 @@ class TrackerSample:
 
 
 @dataclass(frozen=True, kw_only=True)
-class TemperatureSample:
+class TemperatureSample(Stamped):
     """Temperatures (°C) of the named sensors at time ``t``."""
 
     SCHEMA: ClassVar[str] = "robocal.temperature"
-    seq: int
-    t: float
     names: tuple[str, ...]
     values: tuple[float, ...]
 
@@ -167,7 +172,7 @@ class TemperatureSample:
 
     def check_values(self) -> None:
         """The checks without the non-empty rule (a data point may carry no temperatures)."""
-        _finite_seq_time(self)
+        Stamped.check(self)
         lo, hi = TEMPERATURE_RANGE_C
         for name, v in zip(self.names, self.values, strict=False):
             if not (isinstance(v, int | float) and math.isfinite(v)):
@@ -182,19 +187,14 @@ class TemperatureSample:
             )
         if len(set(self.names)) != len(self.names):
             raise RejectedMessageError("invalid", f"temperature names repeat: {self.names}")
-        if len(self.names) != len(self.values):
-            raise RejectedMessageError(
-                "joint_count", f"{len(self.names)} names, {len(self.values)} values"
-            )
+        _same_length(self.names, self.values, "{} names, {} values")
 
 
 @dataclass(frozen=True, kw_only=True)
-class DataPoint:
+class DataPoint(Stamped):
     """One joined measurement: settled joints, temperatures and the tracker pose at ``t``."""
 
     SCHEMA: ClassVar[str] = "robocal.points"
-    seq: int
-    t: float
     q: tuple[float, ...]
     xyz: tuple[float, float, float]
     quat: tuple[float, float, float, float]
@@ -325,9 +325,10 @@ def _check_time(t: Any) -> None:
         raise RejectedMessageError("out_of_range", f"t = {t} s beyond ±{MAX_TIME_S:g} s")
 
 
-def _finite_seq_time(msg: Any) -> None:
-    check_count("seq", msg.seq)
-    _check_time(msg.t)
+def _same_length(a: tuple, b: tuple, detail: str) -> None:
+    """joint_count unless ``a`` and ``b`` are as long; ``detail`` formats both lengths."""
+    if len(a) != len(b):
+        raise RejectedMessageError("joint_count", detail.format(len(a), len(b)))
 
 
 def check_finite(name: str, values: tuple, limit: float, length: int | None = None) -> None:
