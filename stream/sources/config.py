@@ -30,43 +30,57 @@ def _non_negative(name: str, value: Any, zero: str) -> None:
         raise ConfigError(f"{name} must be >= 0 (0: {zero}), got {value!r}")
 
 
-def _robot(robot: Any) -> None:
-    if not isinstance(robot, str) or "/" in robot or "*" in robot:
-        raise ConfigError(f"robot must be a robot name, got {robot!r}")
+@dataclass(frozen=True, kw_only=True)
+class _Source:
+    """What every ``[[sources]]`` table names: its ``kind`` and the ``robot`` it feeds (may be
+    left out when the config has one robot)."""
+
+    kind: str = ""
+    robot: str = ""
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.robot, str) or "/" in self.robot or "*" in self.robot:
+            raise ConfigError(f"robot must be a robot name, got {self.robot!r}")
 
 
 @dataclass(frozen=True, kw_only=True)
-class SimSourceConfig:
-    """The simulated cell: an ``n``-point campaign of ``scenario`` at ``speed`` x real time
-    (0: as fast as possible), one visit every ``period_s`` (s)."""
+class _Replay(_Source):
+    """A source that replays its time at ``speed`` x real time (0: as fast as possible)."""
 
-    kind: str = "sim"
-    robot: str = ""
-    scenario: str = "paper"
-    n: int = 1000
-    seed: int = 0
     speed: float = 1.0
-    period_s: float = 0.6
-    settle_s: float = 0.3
 
     def __post_init__(self) -> None:
-        _robot(self.robot)
-        if not (isinstance(self.n, int) and self.n >= 1):
-            raise ConfigError(f"n must be an int >= 1, got {self.n!r}")
-        _positive(period_s=self.period_s, settle_s=self.settle_s)
+        super().__post_init__()
         _non_negative("speed", self.speed, "as fast as possible")
 
 
 @dataclass(frozen=True, kw_only=True)
-class DatasetSourceConfig:
+class SimSourceConfig(_Replay):
+    """The simulated cell: an ``n``-point campaign of ``scenario`` at ``speed`` x real time
+    (0: as fast as possible), one visit every ``period_s`` (s)."""
+
+    kind: str = "sim"
+    scenario: str = "paper"
+    n: int = 1000
+    seed: int = 0
+    period_s: float = 0.6
+    settle_s: float = 0.3
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not (isinstance(self.n, int) and self.n >= 1):
+            raise ConfigError(f"n must be an int >= 1, got {self.n!r}")
+        _positive(period_s=self.period_s, settle_s=self.settle_s)
+
+
+@dataclass(frozen=True, kw_only=True)
+class DatasetSourceConfig(_Replay):
     """A robocal dataset file streamed as timed samples at ``speed`` x its recorded time (0: as
     fast as possible); ``period_s`` > 0 re-times the rows to one visit per period (s), for
     datasets without usable time; rates (Hz) and the settle/dwell/lead times (s) of the stream."""
 
     kind: str = "dataset"
-    robot: str = ""
     path: str = ""
-    speed: float = 1.0
     period_s: float = 0.0
     joint_rate_hz: float = 125.0
     temperature_rate_hz: float = 1.0
@@ -75,10 +89,9 @@ class DatasetSourceConfig:
     lead_s: float = 1.0
 
     def __post_init__(self) -> None:
-        _robot(self.robot)
+        super().__post_init__()
         if not isinstance(self.path, str) or not self.path:
             raise ConfigError("path must name a dataset file (kind = 'dataset')")
-        _non_negative("speed", self.speed, "as fast as possible")
         _non_negative("period_s", self.period_s, "recorded time")
         _positive(
             joint_rate_hz=self.joint_rate_hz,
@@ -90,13 +103,12 @@ class DatasetSourceConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
-class Ros2SourceConfig:
+class Ros2SourceConfig(_Source):
     """ROS 2 over Zenoh (rmw_zenoh): ``sensor_msgs/msg/JointState`` on ``joint_topic`` (its
     ``joint_names`` in the description's joint order) and the tracker's ``pose_type`` on
     ``pose_topic`` in robocal ``frame``; the ROS graph's Zenoh router at ``connect``."""
 
     kind: str = "ros2"
-    robot: str = ""
     connect: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
     domain_id: int = 0
     joint_topic: str = "/joint_states"
@@ -109,7 +121,7 @@ class Ros2SourceConfig:
     max_queue: int = 100_000
 
     def __post_init__(self) -> None:
-        _robot(self.robot)
+        super().__post_init__()
         if not self.connect or not all(isinstance(e, str) and "/" in e for e in self.connect):
             raise ConfigError(
                 f"connect must list endpoints like tcp/127.0.0.1:7447, got {self.connect!r}"
@@ -133,12 +145,11 @@ class Ros2SourceConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
-class OpcUaSourceConfig:
+class OpcUaSourceConfig(_Source):
     """OPC UA temperatures: the server at ``url`` read every ``period_s`` (s), one node id per
     temperature channel (``nodes = {ambient = "ns=2;s=Cell.Ambient", ...}``, °C)."""
 
     kind: str = "opcua"
-    robot: str = ""
     url: str = ""
     nodes: tuple[tuple[str, str], ...] = ()
     period_s: float = 1.0
@@ -146,7 +157,7 @@ class OpcUaSourceConfig:
     reconnect_s: float = 1.0
 
     def __post_init__(self) -> None:
-        _robot(self.robot)
+        super().__post_init__()
         if not (isinstance(self.url, str) and self.url.startswith("opc.tcp://")):
             raise ConfigError(f"url must look like opc.tcp://host:4840, got {self.url!r}")
         nodes = self.nodes
@@ -185,7 +196,4 @@ def with_speed(sources: tuple[SourceConfig, ...], speed: float) -> tuple[SourceC
     >>> with_speed((DatasetSourceConfig(path="a.parquet"),), 10.0)[0].speed
     10.0
     """
-    return tuple(
-        replace(s, speed=speed) if isinstance(s, DatasetSourceConfig | SimSourceConfig) else s
-        for s in sources
-    )
+    return tuple(replace(s, speed=speed) if isinstance(s, _Replay) else s for s in sources)
