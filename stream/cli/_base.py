@@ -57,6 +57,14 @@ def check_outputs(args: argparse.Namespace) -> None:
             raise CLIUsageError(f"--{name} {value}: cannot write there: {reason}") from None
 
 
+def add_data_argument(parser: argparse.ArgumentParser, robot: bool = False) -> None:
+    """``--data``, the dataset file a command reads, and with ``robot`` the ``--robot``
+    description it is scored against (default: the one its metadata names)."""
+    parser.add_argument("--data", required=True, help="dataset file (.parquet or .csv)")
+    if robot:
+        parser.add_argument("--robot", default=None, help="robot description (default: meta)")
+
+
 def add_json_flag(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="machine-readable result on stdout")
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from stream.cli._base import Command, add_json_flag, emit
+from stream.cli._base import Command, add_data_argument, add_json_flag, emit
 
 
 class Gap(Command):
@@ -17,8 +17,7 @@ class Gap(Command):
     help = "fit a starting model, find where it disagrees with the data and name missing effects"
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument("--data", required=True, help="dataset file (.parquet or .csv)")
-        parser.add_argument("--robot", default=None, help="robot description (default: meta)")
+        add_data_argument(parser, robot=True)
         parser.add_argument(
             "--start",
             default="geometric",
@@ -82,8 +81,7 @@ class Calibrate(Command):
     help = "classical geometric calibration (identifiable DH deviations with base/tool frames)"
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument("--data", required=True, help="dataset file (.parquet or .csv)")
-        parser.add_argument("--robot", default=None, help="robot description (default: meta)")
+        add_data_argument(parser, robot=True)
         parser.add_argument("--out", default=None, help="write the calibrated model TOML here")
         parser.add_argument("--rank-rtol", type=float, default=1e-4, help="QR drop tolerance")
         add_json_flag(parser)

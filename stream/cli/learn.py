@@ -15,10 +15,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from learner.config import STRATEGIES, ContinualConfig, TrainConfig
-from stream.cli._base import Command, add_base_argument, add_json_flag, emit
+from stream.cli._base import Command, add_base_argument, add_data_argument, add_json_flag, emit
 
 if TYPE_CHECKING:
-    from learner.model import ErrorModel
+    from learner.workflow import ContinualResult, TrainResult
 
 
 def _report_text(title: str, r: dict) -> str:
@@ -32,7 +32,7 @@ def _report_text(title: str, r: dict) -> str:
 
 
 def _add_split(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--data", required=True, help="dataset file (.parquet or .csv)")
+    add_data_argument(parser)
     parser.add_argument("--test-fraction", type=float, default=0.1, help="held-out share")
     parser.add_argument("--seed", type=int, default=0, help="split, weights and batch order")
 
@@ -67,23 +67,28 @@ class Train(Command):
                 base=args.base,
             )
         write_trained(result, args.out)
-        test = result.test.to_dict() if result.test else {}
         out = {
             "model": args.out,
             "n_train": result.n_train,
             "epochs": result.report.epochs,
             "n_weights": result.model.n_weights,
-            "base": _base_summary(result.model),
-            "test": test,
         }
         text = (
             f"model -> {args.out} ({result.n_train} points, {result.report.epochs} epochs, "
-            f"base {out['base']['kind']})"
+            f"base {result.model.base_kind})"
         )
-        if test:
-            text += "\n" + _report_text("test", test)
-        emit(out, args.json, text)
-        return 0
+        return _emit_learned(result, out, text, args.json)
+
+
+#: The :class:`ContinualConfig` fields that are options of ``continual`` (default: the
+#: config's), with their help.
+_CONTINUAL_OPTIONS = {
+    "memory": "N_m",
+    "batch": "n_B",
+    "init": "points of model 0",
+    "strategy": None,
+    "epochs_per_update": None,
+}
 
 
 class Continual(Command):
@@ -93,11 +98,15 @@ class Continual(Command):
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
         _add_split(parser)
         defaults = ContinualConfig()
-        parser.add_argument("--memory", type=int, default=defaults.memory, help="N_m")
-        parser.add_argument("--batch", type=int, default=defaults.batch, help="n_B")
-        parser.add_argument("--init", type=int, default=defaults.init, help="points of model 0")
-        parser.add_argument("--strategy", choices=STRATEGIES, default=defaults.strategy)
-        parser.add_argument("--epochs-per-update", type=int, default=defaults.epochs_per_update)
+        for name, what in _CONTINUAL_OPTIONS.items():
+            default = getattr(defaults, name)
+            parser.add_argument(
+                f"--{name.replace('_', '-')}",
+                type=type(default),
+                default=default,
+                choices=STRATEGIES if name == "strategy" else None,
+                help=what,
+            )
         parser.add_argument("--out", required=True, help="final model snapshot (.safetensors)")
         parser.add_argument(
             "--from",
@@ -118,14 +127,7 @@ class Continual(Command):
         from stream.reports.learner import write_continual
 
         ds = read_dataset(args.data)
-        cfg = ContinualConfig(
-            memory=args.memory,
-            batch=args.batch,
-            init=args.init,
-            strategy=args.strategy,
-            epochs_per_update=args.epochs_per_update,
-            seed=args.seed,
-        )
+        cfg = ContinualConfig(**{n: getattr(args, n) for n in _CONTINUAL_OPTIONS}, seed=args.seed)
         start = None if args.start is None else load_learner(args.start, cfg)
         n_updates = 1 + -(
             -max(0, round(len(ds) * (1 - args.test_fraction)) - cfg.init) // cfg.batch
@@ -142,30 +144,36 @@ class Continual(Command):
                 start=start,
             )
         csv_path, png_path = write_continual(result, args.out)
-        test = result.test.to_dict() if result.test else {}
         out = {
             "model": args.out,
             "curve_csv": str(csv_path),
             "curve_png": str(png_path),
             "updates": len(result.updates),
             "train_time_s": result.total_time_s,
-            "base": _base_summary(result.model),
-            "test": test,
         }
         text = (
             f"model -> {args.out}; curve -> {csv_path}, {png_path} ({len(result.updates)} "
             f"updates, {result.total_time_s:.1f} s training)"
         )
-        if test:
-            text += "\n" + _report_text("test", test)
-        emit(out, args.json, text)
-        return 0
+        return _emit_learned(result, out, text, args.json)
 
 
-def _base_summary(model: ErrorModel) -> dict:
-    """What the model's physics base is, for the CLI's output."""
-    base = model.base
-    return {"kind": model.base_kind, "note": "" if base is None else base.note}
+def _emit_learned(
+    result: TrainResult | ContinualResult, out: dict, text: str, as_json: bool
+) -> int:
+    """Print what ``train``/``continual`` learned: ``out`` and ``text`` with the model's
+    physics base and its test report (when a test split was held out); exit code 0."""
+    base = result.model.base
+    test = result.test.to_dict() if result.test else {}
+    out = {
+        **out,
+        "base": {"kind": result.model.base_kind, "note": "" if base is None else base.note},
+        "test": test,
+    }
+    if test:
+        text += "\n" + _report_text("test", test)
+    emit(out, as_json, text)
+    return 0
 
 
 class Evaluate(Command):
@@ -174,7 +182,7 @@ class Evaluate(Command):
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("--model", required=True, help="model snapshot (.safetensors)")
-        parser.add_argument("--data", required=True, help="dataset file (.parquet or .csv)")
+        add_data_argument(parser)
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
@@ -192,7 +200,7 @@ class ExperimentPaper(Command):
     help = "the reference study: feature ablation, training-set size, continual vs batch, SGPR"
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument("--data", required=True, help="dataset file (.parquet or .csv)")
+        add_data_argument(parser)
         parser.add_argument("--out", default="paper_study", help="folder for table and plots")
         parser.add_argument("--seed", type=int, default=0)
         parser.add_argument("--quick", action="store_true", help="small grid, few epochs")

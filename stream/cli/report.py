@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import argparse
 
-from stream.cli._base import CLIUsageError, Command, add_json_flag, emit
+from stream.cli._base import CLIUsageError, Command, add_data_argument, add_json_flag, emit
 
 
 class ReportIso9283(Command):
@@ -18,7 +18,7 @@ class ReportIso9283(Command):
     )
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument("--data", required=True, help="dataset file (.parquet or .csv)")
+        add_data_argument(parser)
         parser.add_argument(
             "--model", default=None, help="model snapshot (.safetensors): also after compensation"
         )
