@@ -14,6 +14,7 @@ the change of BIC; p-values are Holm-corrected over the candidates.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from scipy.stats import f as f_dist
@@ -24,6 +25,16 @@ from kinematics.errors import ConfigError, RobocalError
 from kinematics.identification.conditions import Observations
 from kinematics.identification.fitting import Block, jacobian
 from kinematics.model import RobotModel
+
+
+class FitState(NamedTuple):
+    """The current fit a candidate is scored against: its blocks, Jacobian (m, p0), weighted
+    residual (m,) and the rotation weight ``w`` (m/rad) that weighted it."""
+
+    blocks: list[Block]
+    jac: np.ndarray
+    residual: np.ndarray
+    w: float
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -90,15 +101,13 @@ def score_candidate(
     effect: Effect,
     model: RobotModel,
     obs: Observations,
-    blocks: list[Block],
-    current_jac: np.ndarray,
-    residual: np.ndarray,
-    w: float,
+    state: FitState,
     absorb_rtol: float = 1e-2,
     rank_rtol: float = 1e-3,
 ) -> CandidateScore:
-    """Score ``effect`` against the current model (Jacobian ``current_jac`` (m, p0), weighted
-    residual ``residual`` (m,)); the Holm correction is applied by :func:`score_candidates`."""
+    """Score ``effect`` against the current fit ``state``; the Holm correction is applied by
+    :func:`score_candidates`."""
+    blocks, current_jac, residual, w = state
     desc = model.description
     name = effect.name
     names = effect.parameter_names(desc)
@@ -172,18 +181,13 @@ def score_candidates(
     effects: list[Effect | CandidateScore],
     model: RobotModel,
     obs: Observations,
-    blocks: list[Block],
-    current_jac: np.ndarray,
-    residual: np.ndarray,
-    w: float,
+    state: FitState,
     level: float = 0.01,
 ) -> list[CandidateScore]:
     """Every candidate scored (one given as a score is taken as it is), Holm-corrected at
     ``level``; significant ones also need a negative change of BIC."""
     scores = [
-        e
-        if isinstance(e, CandidateScore)
-        else score_candidate(e, model, obs, blocks, current_jac, residual, w)
+        e if isinstance(e, CandidateScore) else score_candidate(e, model, obs, state)
         for e in effects
     ]
     adjusted = holm([s.p_value for s in scores]) if scores else []

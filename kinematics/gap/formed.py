@@ -21,12 +21,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import f as f_dist
 
+from kinematics.dataset import temperature_column
 from kinematics.description import RobotDescription
 from kinematics.effects import Effect, ThermalExpansion
 from kinematics.errors import DatasetError, RobocalError
-from kinematics.gap.candidates import CandidateScore, make_effect, untestable
+from kinematics.gap.candidates import CandidateScore, FitState, make_effect, untestable
 from kinematics.identification.conditions import Observations
-from kinematics.identification.fitting import Block, jacobian
+from kinematics.identification.fitting import jacobian
 from kinematics.model import RobotModel
 
 #: Two standardised channels closer than this in correlation cannot be told apart.
@@ -46,7 +47,8 @@ def check_temperatures(obs: Observations) -> None:
     if corr.size and corr.max() > _SAME_CHANNEL_CORR:
         i, j = np.unravel_index(np.argmax(corr), corr.shape)
         raise DatasetError(
-            f"temperature channels temp_{names[live[i]]} and temp_{names[live[j]]} cannot be "
+            f"temperature channels {temperature_column(names[live[i]])} and "
+            f"{temperature_column(names[live[j]])} cannot be "
             f"told apart (correlation {corr[i, j]:.7f}); drop one, or map them to links in the "
             "description's [sensors.temperature_links]"
         )
@@ -61,8 +63,8 @@ def mapped_thermal(desc: RobotDescription, obs: Observations, t_ref_c: float = 2
     if missing and names:
         raise DatasetError(
             f"the description's [sensors] map names temperature channel(s) "
-            f"{', '.join('temp_' + c for c in missing)} that the dataset lacks "
-            f"(it has {', '.join('temp_' + c for c in sorted(names))})"
+            f"{', '.join(map(temperature_column, missing))} that the dataset lacks "
+            f"(it has {', '.join(map(temperature_column, sorted(names)))})"
         )
     terms = tuple((i + 1, chs) for i, chs in enumerate(desc.link_channels()) if chs)
     return ThermalExpansion(terms=terms, t_ref_c=t_ref_c)
@@ -73,7 +75,7 @@ def candidate_effects(
     options: dict[str, dict],
     model: RobotModel,
     obs: Observations,
-    fit_state: tuple[list[Block], np.ndarray, np.ndarray, float],
+    fit_state: FitState,
     level: float,
 ) -> tuple[list[Effect | CandidateScore], list[tuple[str, str]]]:
     """The candidates to score (an effect, or a score for one that was formed empty) and the
@@ -97,7 +99,7 @@ def candidate_effects(
 def thermal_from_data(
     model: RobotModel,
     obs: Observations,
-    fit_state: tuple[list[Block], np.ndarray, np.ndarray, float],
+    fit_state: FitState,
     level: float,
     absorb_rtol: float = 1e-2,
 ) -> ThermalExpansion | CandidateScore:

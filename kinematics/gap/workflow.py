@@ -35,7 +35,7 @@ from kinematics.dataset import Dataset
 from kinematics.description import RobotDescription
 from kinematics.effects import EFFECTS, Effect, Restricted
 from kinematics.errors import ConfigError
-from kinematics.gap.candidates import CandidateScore, best, score_candidates
+from kinematics.gap.candidates import CandidateScore, FitState, best, score_candidates
 from kinematics.gap.formed import candidate_effects
 from kinematics.gap.model_file import EffectEntry, ModelFile
 from kinematics.gap.naming import NamedEffect, named_effect
@@ -232,21 +232,12 @@ def _run_gap(desc, ds, config, progress) -> GapResult:
             break
         say(f"scoring {len(candidates)} candidates")
         r = _weighted(fit.residual, fit.rotation_weight_m)
-        state = (blocks, fit.jac, r, fit.rotation_weight_m)
+        state = FitState(blocks, fit.jac, r, fit.rotation_weight_m)
         formed, not_formed = candidate_effects(
             candidates, options, model, obs_tr, state, config.level
         )
         by_name = {e.name if isinstance(e, Effect) else e.effect: e for e in formed}
-        scores = score_candidates(
-            formed,
-            model,
-            obs_tr,
-            blocks,
-            fit.jac,
-            r,
-            fit.rotation_weight_m,
-            config.level,
-        )
+        scores = score_candidates(formed, model, obs_tr, state, config.level)
         top = best(scores)
         if top is None:
             stop = "no candidate of the vocabulary explains the residual significantly"

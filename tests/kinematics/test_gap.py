@@ -9,7 +9,7 @@ from kinematics.calibration import CalibrationConfig, GeometricFrames, identify
 from kinematics.description import load_description
 from kinematics.effects import EFFECTS, perturbed_poses
 from kinematics.errors import ConfigError, DescriptionError, IdentifiabilityError
-from kinematics.gap.candidates import make_effect, score_candidate
+from kinematics.gap.candidates import FitState, make_effect, score_candidate
 from kinematics.gap.model_file import load_model_file, model_to_toml
 from kinematics.gap.workflow import GapConfig, run_gap, split
 from kinematics.identification.conditions import (
@@ -106,9 +106,8 @@ def test_indistinguishable_candidate_is_reported_not_guessed():
     fit = fit_effects(model, obs, [(geo, np.zeros(len(geo.free)))])
     r = np.concatenate([fit.residual[:, :3], fit.rotation_weight_m * fit.residual[:, 3:]], 1)
     blocks = fit.blocks([geo])
-    score = score_candidate(
-        EFFECTS["tool_frame"](), model, obs, blocks, fit.jac, r.ravel(), fit.rotation_weight_m
-    )
+    state = FitState(blocks, fit.jac, r.ravel(), fit.rotation_weight_m)
+    score = score_candidate(EFFECTS["tool_frame"](), model, obs, state)
     assert score.kept == () and not score.significant
     assert "cannot be told apart" in score.note and len(score.absorbed) == 6
 
@@ -119,9 +118,8 @@ def test_candidate_without_its_data_is_not_testable():
     ds = type(ds)(table, ds.meta)
     desc = cell_description(load_description(ds.meta.robot), ds)
     model, obs = RobotModel(desc), observations_from_dataset(ds, desc)
-    score = score_candidate(
-        make_effect("thermal_expansion"), model, obs, [], np.zeros((6 * 60, 0)), np.ones(360), 1.0
-    )
+    state = FitState([], np.zeros((6 * 60, 0)), np.ones(360), 1.0)
+    score = score_candidate(make_effect("thermal_expansion"), model, obs, state)
     assert score.note.startswith("not testable") and "temperatures" in score.note
 
 
