@@ -95,20 +95,35 @@ def main() -> None:
         for series in ("Series_A", "Series_B"):
             out = Path(args.tmp) / f"ur10_{series[-1].lower()}.parquet"
             datasets[f"UR10 {series}"] = import_series(UR10 / series, out=out).dataset
-    cal_rows = [heldout_row(name, ds) for name, ds in datasets.items()]
-    print(
-        "\n| dataset | train/test | uncalibrated mean / std / max mm | calibrated mean / std / "
-        "max mm | arcmin mean | kept params / cond | fit s |"
+    print_table(
+        [
+            "dataset",
+            "train/test",
+            "uncalibrated mean / std / max mm",
+            "calibrated mean / std / max mm",
+            "arcmin mean",
+            "kept params / cond",
+            "fit s",
+        ],
+        [heldout_row(name, ds) for name, ds in datasets.items()],
     )
-    print("|---|---|---|---|---|---|---|")
-    for row in cal_rows:
-        print("| " + " | ".join(row) + " |")
-    rows = [gap_rows(name, ds) for name, ds in datasets.items()]
-    print(
-        "\n| dataset | named effects | held-out mean mm per stage | noise floor mm | "
-        "consistent | s |"
+    print_table(
+        [
+            "dataset",
+            "named effects",
+            "held-out mean mm per stage",
+            "noise floor mm",
+            "consistent",
+            "s",
+        ],
+        [gap_rows(name, ds) for name, ds in datasets.items()],
     )
-    print("|---|---|---|---|---|---|")
+
+
+def print_table(columns: list[str], rows: list[list[str]]) -> None:
+    """A Markdown table on stdout after a blank line, ``columns`` its header."""
+    print("\n| " + " | ".join(columns) + " |")
+    print("|---" * len(columns) + "|")
     for row in rows:
         print("| " + " | ".join(row) + " |")
 
