@@ -94,20 +94,14 @@ def test_a_session_without_a_certificate_or_with_a_foreign_one_cannot_connect(li
         zenoh.open(plain)
 
 
-def test_only_the_tracker_role_injects_tracker_samples(line):
+@pytest.mark.parametrize("stream, owner", [("tracker", "tracker"), ("model", "learner")])
+def test_only_the_owning_role_publishes_on_its_stream(line, stream, owner):
+    """Only the tracker role injects tracker samples; only the learner publishes models."""
     session, _, _ = line
-    roles = ("robot", "daq", "learner", "dashboard", "compensation", "tracker")
+    roles = ("robot", "tracker", "daq", "learner", "dashboard", "compensation")
     publishers = {r: session(r) for r in roles}
-    got = _received(session("dashboard"), "robocal/c1/r1/tracker", publishers, "tracker")
-    assert got == ["tracker"]
-
-
-def test_only_the_learner_publishes_models(line):
-    session, _, _ = line
-    roles = ("robot", "tracker", "daq", "dashboard", "compensation", "learner")
-    publishers = {r: session(r) for r in roles}
-    got = _received(session("dashboard"), "robocal/c1/r1/model", publishers, "learner")
-    assert got == ["learner"]
+    got = _received(session("dashboard"), f"robocal/c1/r1/{stream}", publishers, owner)
+    assert got == [owner]
 
 
 def test_only_listed_clients_query_compensate(line):

@@ -1,4 +1,5 @@
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,6 +23,14 @@ def _json(capsys):
     return json.loads(capsys.readouterr().out)
 
 
+def _continual(capsys, data: Path, out: Path, *options: str) -> dict:
+    """``robocal continual`` on ``data`` in batches of 40, 2 epochs per update, writing ``out``
+    (exit 0): its JSON result."""
+    argv = ["continual", "--data", str(data), "--batch", "40", "--epochs-per-update", "2"]
+    assert main([*argv, *options, "--out", str(out), "--json"]) == 0
+    return _json(capsys)
+
+
 def test_train_then_evaluate(data_file, tmp_path, capsys):
     model = tmp_path / "m.safetensors"
     argv = ["train", "--data", str(data_file), "--out", str(model), "--max-epochs", "3", "--json"]
@@ -39,24 +48,7 @@ def test_train_then_evaluate(data_file, tmp_path, capsys):
 
 def test_continual_writes_model_and_curve(data_file, tmp_path, capsys):
     model = tmp_path / "c.safetensors"
-    argv = [
-        "continual",
-        "--data",
-        str(data_file),
-        "--memory",
-        "40",
-        "--batch",
-        "40",
-        "--init",
-        "30",
-        "--epochs-per-update",
-        "2",
-        "--out",
-        str(model),
-        "--json",
-    ]
-    assert main(argv) == 0
-    out = _json(capsys)
+    out = _continual(capsys, data_file, model, "--memory", "40", "--init", "30")
     assert out["updates"] == 4  # init + ceil((144 - 30) / 40)
     csv = (tmp_path / "c.curve.csv").read_text().splitlines()
     assert len(csv) == 5 and "mean_mm" in csv[0]
@@ -97,26 +89,9 @@ def test_continual_goes_on_from_a_model_with_its_memory(data_file, tmp_path, cap
     assert main(argv) == 0
     assert (tmp_path / "day1.state.safetensors").is_file()  # the memory travels beside it
     capsys.readouterr()
-    argv = [
-        "continual",
-        "--from",
-        str(first),
-        "--data",
-        str(data_file),
-        "--test-fraction",
-        "0",
-        "--batch",
-        "40",
-        "--init",
-        "40",
-        "--epochs-per-update",
-        "2",
-        "--out",
-        str(second),
-        "--json",
-    ]
-    assert main(argv) == 0
-    out = _json(capsys)
+    out = _continual(
+        capsys, data_file, second, "--from", str(first), "--test-fraction", "0", "--init", "40"
+    )
     assert out["updates"] == 4  # all 160 points streamed, no first model trained again
     assert out["base"]["kind"] == "geometric" and out["test"] == {}
     model = load_snapshot(second)

@@ -6,7 +6,6 @@ a whole daemon: bench/load.py and bench/soak.py (BENCHMARKS.md)."""
 
 import io
 import threading
-import time
 
 import pytest
 
@@ -14,16 +13,10 @@ from stream.bus import BusConfig, free_port, open_session, publisher
 from stream.log import JsonLogger
 from stream.stages import WindowStage
 from stream.window import WindowConfig
+from tests.stream.conftest import wait_for
 from wire import JointSample, encode, key
 
 pytestmark = pytest.mark.integration
-
-
-def wait_for(cond, timeout: float = 30.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while not cond() and time.monotonic() < deadline:
-        time.sleep(0.02)
-    return cond()
 
 
 @pytest.fixture

@@ -14,16 +14,10 @@ from stream.log import JsonLogger
 from stream.sources.build import SourceThread
 from stream.sources.config import OpcUaSourceConfig
 from stream.sources.opcua import OpcUaSource
+from tests.stream.conftest import wait_for
 from tests.stream.sources.conftest import CELL, ROBOT
 
 pytestmark = pytest.mark.integration
-
-
-def wait_for(predicate, timeout_s: float = 30.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while not predicate() and time.monotonic() < deadline:
-        time.sleep(0.02)
-    return predicate()
 
 
 def start(session, server, period_s: float = 0.1) -> SourceThread:
