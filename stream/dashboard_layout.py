@@ -13,6 +13,22 @@ ERROR_RGB = (200, 60, 40)
 _ERROR_BAND = (240, 150, 130)
 _EPI_BAND = (120, 120, 220)
 
+
+def _bands(panel: str) -> dict[str, dict]:
+    """The styles of a panel's two 90 % bands around its error line: predictive (aleatoric +
+    epistemic) and epistemic only."""
+    return {
+        f"{panel}/{band}": {
+            "names": [f"90 % {what}: lower", f"90 % {what}: upper"],
+            "colors": [colour, colour],
+        }
+        for band, what, colour in (
+            ("interval", "predictive", _ERROR_BAND),
+            ("epistemic", "epistemic", _EPI_BAND),
+        )
+    }
+
+
 #: Static styles (``rr.SeriesLines`` keyword arguments, or ``kind="points"`` for markers) by
 #: entity path.
 SERIES_STYLE: dict[str, dict] = {
@@ -23,23 +39,9 @@ SERIES_STYLE: dict[str, dict] = {
         "marker_sizes": [1.5],
     },
     "points/error/predicted": {"names": ["predicted (lagging model)"], "colors": [ERROR_RGB]},
-    "points/error/interval": {
-        "names": ["90 % predictive: lower", "90 % predictive: upper"],
-        "colors": [_ERROR_BAND, _ERROR_BAND],
-    },
-    "points/error/epistemic": {
-        "names": ["90 % epistemic: lower", "90 % epistemic: upper"],
-        "colors": [_EPI_BAND, _EPI_BAND],
-    },
+    **_bands("points/error"),
     "points/left/error": {"names": ["error left (lagging model)"], "colors": [ERROR_RGB]},
-    "points/left/interval": {
-        "names": ["90 % predictive: lower", "90 % predictive: upper"],
-        "colors": [_ERROR_BAND, _ERROR_BAND],
-    },
-    "points/left/epistemic": {
-        "names": ["90 % epistemic: lower", "90 % epistemic: upper"],
-        "colors": [_EPI_BAND, _EPI_BAND],
-    },
+    **_bands("points/left"),
     "metrics/test_error/mean": {
         "names": ["held-out test mean (current model)"],
         "colors": [(20, 120, 60)],
