@@ -32,7 +32,17 @@ DEG_PER_RAD = 180.0 / np.pi
 
 
 @dataclass(frozen=True, kw_only=True)
-class PoseCharacteristics:
+class _Characteristics:
+    """ISO 9283 characteristics measured over ``n`` cycles; ``to_dict`` for reports."""
+
+    n: int
+
+    def to_dict(self) -> dict[str, float | int]:
+        return asdict(self)
+
+
+@dataclass(frozen=True, kw_only=True)
+class PoseCharacteristics(_Characteristics):
     """AP and RP of one test pose (ISO 9283 clause 7.2), mm and degrees.
 
     ``ap_p_mm`` positional pose accuracy AP_P, the distance from the barycentre of the attained
@@ -44,7 +54,6 @@ class PoseCharacteristics:
     ``s_l_mm`` S_l; ``n`` the cycles.
     """
 
-    n: int
     ap_p_mm: float
     ap_x_mm: float
     ap_y_mm: float
@@ -59,12 +68,9 @@ class PoseCharacteristics:
     rp_b_deg: float
     rp_c_deg: float
 
-    def to_dict(self) -> dict[str, float | int]:
-        return asdict(self)
-
 
 @dataclass(frozen=True, kw_only=True)
-class DistanceCharacteristics:
+class DistanceCharacteristics(_Characteristics):
     """AD and RD between two test poses (ISO 9283 clause 7.4), mm.
 
     ``ad_p_mm`` distance accuracy AD_P = D̄ - D_c (signed: attained distances longer than the
@@ -73,16 +79,12 @@ class DistanceCharacteristics:
     ±3 S_D (half-width); ``d_c_mm`` the commanded distance D_c; ``n`` the cycles.
     """
 
-    n: int
     d_c_mm: float
     ad_p_mm: float
     ad_x_mm: float
     ad_y_mm: float
     ad_z_mm: float
     rd_p_mm: float
-
-    def to_dict(self) -> dict[str, float | int]:
-        return asdict(self)
 
 
 def _cycles(name: str, a: np.ndarray, width: int = 3) -> np.ndarray:
