@@ -295,25 +295,13 @@ class Joiner:
         speed = np.abs(np.diff(q, axis=0)[ok]) / dt[ok, None]
         if speed.size == 0 or float(speed.max()) >= cfg.settle_velocity_rad_s:
             return None, "not_settled"
-        names: tuple[str, ...] = ()
-        values: tuple[float, ...] = ()
+        temperature = None
         if cfg.require_temperatures:
             i = bisect.bisect_right(temps.t, tk.t) - 1
             if i < 0 or tk.t - temps.t[i] > cfg.temperature_tolerance_s:
                 return None, "no_temperature"
-            names, values = tuple(temps.items[i].names), tuple(temps.items[i].values)
-        point = DataPoint(
-            seq=tk.seq,
-            t=tk.t,
-            q=tuple(nearest.q),
-            qs=None if nearest.qs is None else tuple(nearest.qs),
-            xyz=tuple(tk.xyz),
-            quat=tuple(tk.quat),
-            frame=tk.frame,
-            temperature_names=names,
-            temperatures=values,
-        )
-        return point, ""
+            temperature = temps.items[i]
+        return DataPoint.join(nearest, tk, temperature), ""
 
 
 class Batcher:

@@ -203,6 +203,27 @@ class DataPoint(Stamped):
     temperature_names: tuple[str, ...] = ()
     temperatures: tuple[float, ...] = ()
 
+    @classmethod
+    def join(
+        cls,
+        joint: JointSample,
+        tracker: TrackerSample,
+        temperature: TemperatureSample | None = None,
+    ) -> DataPoint:
+        """The point ``tracker`` measured at ``joint``'s angles and ``temperature``'s readings
+        (none: no temperatures), numbered and timed as the tracker sample."""
+        return cls(
+            seq=tracker.seq,
+            t=tracker.t,
+            q=tuple(joint.q),
+            qs=None if joint.qs is None else tuple(joint.qs),
+            xyz=tuple(tracker.xyz),
+            quat=tuple(tracker.quat),
+            frame=tracker.frame,
+            temperature_names=() if temperature is None else tuple(temperature.names),
+            temperatures=() if temperature is None else tuple(temperature.values),
+        )
+
     def check(self) -> None:
         JointSample(seq=self.seq, t=self.t, q=self.q, qs=self.qs).check()
         TrackerSample(

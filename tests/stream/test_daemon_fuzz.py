@@ -9,6 +9,7 @@ import json
 import time
 from dataclasses import dataclass, field, replace
 
+import numpy as np
 import pytest
 import torch
 from hypothesis import HealthCheck, given, settings
@@ -25,19 +26,20 @@ from sim_sources.scenarios import get_scenario
 from sim_sources.streaming import StreamingConfig, cell_samples
 from stream.bus import BusConfig, free_port, open_session, publisher
 from stream.compensation import CompensationReply, CompensationRequest
-from stream.config import DaemonConfig, DashboardConfig, RecorderConfig, RobotConfig
+from stream.config import RecorderConfig
 from stream.daemon import Daemon
+from stream.demo import demo_config
 from stream.learner_core import LearnerStageConfig
 from stream.log import JsonLogger
 from stream.sources import SimCellSource
 from stream.window import WindowConfig
 from tests.stream.conftest import wait_for
+from tests.stream.wire_examples import DIAGNOSTICS, METRICS
 from wire import (
     Batch,
     DataPoint,
     Diagnostics,
     JointSample,
-    Metrics,
     ModelHeader,
     TemperatureSample,
     TrackerSample,
@@ -83,20 +85,10 @@ def live(tmp_path_factory):
     ds = simulate(get_scenario("paper"), 40, 3)
     robot = ds.meta.robot
     port = free_port()
-    cfg = DaemonConfig(
-        cell=CELL,
-        bus=BusConfig.loopback(port, listen=True),
-        robots=(
-            RobotConfig(
-                name=robot,
-                description=robot,
-                stages=("window", "learner", "compensation", "dashboard"),
-                T_W_0=tuple(map(tuple, ds.meta.T_W_0)),
-            ),
-        ),
+    cfg = replace(  # the demo's daemon (every stage, loopback), smaller and flushing often
+        demo_config(d, CELL, robot, np.asarray(ds.meta.T_W_0), port),
         window=WindowConfig(batch_size=20),
         learner=SMALL,
-        dashboard=DashboardConfig(rrd=str(d / "fuzz.rrd")),
         recorder=RecorderConfig(path=str(d / "fuzz.mcap"), flush_interval_s=0.2),
         checkpoint_dir=str(d / "state"),
         shutdown_timeout_s=7.0,
@@ -141,38 +133,16 @@ def templates(ds, model_payload) -> dict:
     joint = next(s for s in samples if isinstance(s, JointSample))
     tracker = next(s for s in samples if isinstance(s, TrackerSample))
     temp = next(s for s in samples if isinstance(s, TemperatureSample))
-    point = DataPoint(
-        seq=5,
-        t=tracker.t,
-        q=joint.q,
-        qs=joint.qs,
-        xyz=tracker.xyz,
-        quat=tracker.quat,
-        frame=tracker.frame,
-        temperature_names=temp.names,
-        temperatures=temp.values,
-    )
+    point = replace(DataPoint.join(joint, tracker, temp), seq=5)
     header = decode_model(model_payload)[0]
-    metrics = Metrics(
-        model_version=header.model_version,
-        n_seen=1,
-        memory_size=1,
-        train_time_s=0.1,
-        test_mean_mm=0.1,
-        test_max_mm=0.2,
-        batch_mean_mm=0.1,
-        aleatoric_mm=0.1,
-        epistemic_mm=0.1,
-        epistemic_p90_mm=0.1,
-    )
     return {
         "joints": to_dict(joint),
         "tracker": to_dict(tracker),
         "temperature": to_dict(temp),
         "points": to_dict(point),
         "batches": to_dict(Batch(seq=1000, points=(point, point), epoch=1, first=0)),
-        "metrics": to_dict(metrics),
-        "diagnostics": to_dict(Diagnostics(stage="window", accepted=1)),
+        "metrics": to_dict(replace(METRICS, model_version=header.model_version)),
+        "diagnostics": to_dict(DIAGNOSTICS),
         "compensate": {
             "schema": CompensationRequest.SCHEMA,
             "version": 1,

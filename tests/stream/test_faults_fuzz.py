@@ -17,55 +17,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from stream.bus import BusConfig, Received, free_port, open_session
-from stream.compensation import CompensationRequest
 from stream.log import JsonLogger
 from stream.stages import WindowStage
 from stream.window import WindowConfig
-from wire import (
-    Batch,
-    DataPoint,
-    Diagnostics,
-    JointSample,
-    Metrics,
-    ModelHeader,
-    RejectedMessageError,
-    TemperatureSample,
-    TrackerSample,
-    decode,
-    decode_model,
-    key,
-    to_dict,
-)
+from tests.stream.wire_examples import JOINT, TEMPERATURE, TRACKER, VALID
+from wire import RejectedMessageError, decode, decode_model, key, to_dict
 
-POINT = DataPoint(
-    seq=3, t=12.5, q=(0.1,) * 6, xyz=(1.0, 0.2, 0.5), quat=(0.0, 0.0, 0.0, 1.0), qs=(0.1,) * 6,
-    temperature_names=("ambient",), temperatures=(21.0,),
-)  # fmt: skip
-VALID = [
-    JointSample(seq=1, t=10.0, q=(0.1,) * 6, qs=(0.1,) * 6),
-    TrackerSample(seq=2, t=10.5, xyz=(1.0, 0.0, 0.5), quat=(0.0, 0.0, 0.0, 1.0)),
-    TemperatureSample(seq=3, t=11.0, names=("ambient", "j1"), values=(21.0, 25.0)),
-    POINT,
-    Batch(seq=4, points=(POINT, POINT), epoch=1_700_000_000_000, first=8),
-    ModelHeader(model_version=3, robot="fanuc_m900ib700", n_seen=200, t=12.0),
-    Metrics(
-        model_version=3,
-        n_seen=200,
-        memory_size=50,
-        train_time_s=0.2,
-        test_mean_mm=0.3,
-        test_max_mm=1.0,
-        batch_mean_mm=0.4,
-        aleatoric_mm=0.1,
-        epistemic_mm=0.1,
-        epistemic_p90_mm=0.2,
-        memory_age=(10, 5),
-        t=13.0,
-    ),  # fmt: skip
-    Diagnostics(stage="window", accepted=10, dropped={"late": 2}, t=14.0),
-    CompensationRequest(q=(0.1,) * 6, temperatures={"ambient": 21.0}),
-    CompensationRequest(q=(0.1,) * 6, target_xyz=(1.5, 0.0, 1.0), target_quat=(0.0, 0.0, 0.0, 1.0)),
-]
 HOSTILE = st.one_of(
     st.none(),
     st.booleans(),
@@ -151,7 +108,7 @@ def test_a_window_stage_counts_every_refusal_once_under_its_reason(data):
     cfg = WindowConfig(n_joints=6, require_temperatures=False)
     stage = WindowStage(session, "fuzz", "r1", cfg, JsonLogger(stream=io.StringIO()))
     try:
-        sources = {"joints": VALID[0], "tracker": VALID[1], "temperature": VALID[2]}
+        sources = {"joints": JOINT, "tracker": TRACKER, "temperature": TEMPERATURE}
         n = 300
         for _ in range(n):
             stream = data.draw(st.sampled_from(sorted(sources)))

@@ -8,12 +8,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from kinematics.errors import SchemaError
+from tests.stream.wire_examples import HEADER, JOINT, SAMPLES
 from wire import (
-    Batch,
-    DataPoint,
     DropCounter,
     JointSample,
-    ModelHeader,
     RejectedMessageError,
     TemperatureSample,
     TrackerSample,
@@ -25,29 +23,8 @@ from wire import (
     split_key,
 )
 
-JOINT = JointSample(seq=3, t=1.5, q=(0.1, -0.2, 0.3, 0.0, 0.5, -1.0), qs=(0.1,) * 6)
-TRACKER = TrackerSample(seq=1, t=2.0, xyz=(1.0, 0.2, 0.5), quat=(0.0, 0.0, 0.0, 1.0))
-POINT = DataPoint(
-    seq=1,
-    t=2.0,
-    q=JOINT.q,
-    xyz=TRACKER.xyz,
-    quat=TRACKER.quat,
-    temperature_names=("a",),
-    temperatures=(20.0,),
-)
 
-
-@pytest.mark.parametrize(
-    "msg",
-    [
-        JOINT,
-        TRACKER,
-        TemperatureSample(seq=0, t=0.0, names=("base", "ambient"), values=(21.0, 20.5)),
-        POINT,
-        Batch(seq=4, points=(POINT, POINT)),
-    ],
-)
+@pytest.mark.parametrize("msg", SAMPLES)
 def test_round_trip(msg):
     assert decode(encode(msg), type(msg)) == msg
 
@@ -103,9 +80,8 @@ def test_nan_survives_encoding_and_is_rejected():
 
 
 def test_model_framing_round_trip():
-    header = ModelHeader(model_version=3, robot="ur10", n_seen=120, t=12.5)
     blob = b"\x00safetensors bytes\xff"
-    assert decode_model(encode_model(header, blob)) == (header, blob)
+    assert decode_model(encode_model(HEADER, blob)) == (HEADER, blob)
 
 
 @pytest.mark.parametrize("payload", [b"", b"\x05\x00\x00\x00\x00\x00\x00\x00{}", b"\xff" * 8])
@@ -140,7 +116,7 @@ JSON = st.recursive(
 
 @settings(max_examples=300, deadline=None)
 @given(
-    cls=st.sampled_from([JointSample, TrackerSample, TemperatureSample, DataPoint, Batch]),
+    cls=st.sampled_from([type(m) for m in SAMPLES]),
     values=st.dictionaries(
         st.sampled_from(
             [

@@ -18,6 +18,7 @@ from learner.snapshot import snapshot_to_bytes
 from stream.bus import Received, Worker
 from stream.trust import ModelGate, ModelTrustConfig, description_hash
 from stream.window import Batcher, Joiner, WindowConfig
+from tests.stream.wire_examples import decode_refusal
 from wire import (
     MAX_DEPTH,
     Batch,
@@ -26,19 +27,12 @@ from wire import (
     RejectedMessageError,
     TemperatureSample,
     TrackerSample,
-    decode,
     encode,
     encode_model,
     parse_json,
 )
 
 CFG = WindowConfig(n_joints=1, require_temperatures=False, allowed_lateness_s=0.0)
-
-
-def reason(payload, cls) -> str:
-    with pytest.raises(RejectedMessageError) as exc:
-        decode(payload, cls)
-    return exc.value.reason
 
 
 @pytest.mark.parametrize(
@@ -52,7 +46,7 @@ def reason(payload, cls) -> str:
 )
 def test_size_and_depth_are_limited_before_parsing(payload, why):
     t0 = time.perf_counter()
-    assert reason(payload, JointSample) == why
+    assert decode_refusal(payload, JointSample) == why
     assert time.perf_counter() - t0 < 0.5
 
 
@@ -79,20 +73,20 @@ def joint(seq=0, t=1.0, q=(0.1,)) -> JointSample:
 def test_seq_and_t_are_bounded(field, value, why):
     raw = json.loads(encode(joint()))
     raw[field] = value
-    assert reason(json.dumps(raw), JointSample) == why
+    assert decode_refusal(json.dumps(raw), JointSample) == why
 
 
 def test_batch_seq_epoch_first_are_ints_in_range():
     raw = json.loads(encode(Batch(seq=1, points=())))
     for field, value in (("seq", "x"), ("seq", 1e9), ("epoch", -5), ("first", 2**60)):
-        assert reason(json.dumps({**raw, field: value}), Batch) == "out_of_range"
+        assert decode_refusal(json.dumps({**raw, field: value}), Batch) == "out_of_range"
 
 
 def test_temperature_names_must_be_non_empty_and_unique():
     s = TemperatureSample(seq=0, t=1.0, names=(), values=())
-    assert reason(encode(s), TemperatureSample) == "invalid"
+    assert decode_refusal(encode(s), TemperatureSample) == "invalid"
     s = TemperatureSample(seq=0, t=1.0, names=("a", "a"), values=(1.0, 2.0))
-    assert reason(encode(s), TemperatureSample) == "invalid"
+    assert decode_refusal(encode(s), TemperatureSample) == "invalid"
 
 
 def stream_joints(j: Joiner, t0: float, n: int, seq0: int = 0) -> None:
