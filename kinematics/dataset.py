@@ -2,7 +2,9 @@
 
 Columns: ``t`` (s), ``q1..q6`` (rad, controller), optional ``qs1..qs6`` (rad, secondary
 encoders), optional ``temp_<name>`` (°C), the measured pose ``x, y, z`` (m) and
-``qx, qy, qz, qw``, optional simulator-only ``true_*``. Metadata travels in
+``qx, qy, qz, qw``, optional simulator-only ``true_*``. A thermometer's channel ``<name>``
+and its column ``temp_<name>`` are told apart by one rule everywhere: :func:`temperature_column`,
+:func:`temperature_name`, :func:`temperature_columns`. Metadata travels in
 ``<dataset>.meta.json`` (both formats) and, for Parquet, in the file's key-value metadata.
 Writes are atomic: a temporary file in the same folder, then a rename.
 """
@@ -12,7 +14,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -27,6 +29,8 @@ from kinematics.transforms import invert, transform_from_xyz_quat
 POSE_COLUMNS = ("x", "y", "z", "qx", "qy", "qz", "qw")
 FRAMES = ("base", "tracker")
 META_KEY = b"robocal.meta"
+#: The prefix of a temperature column: channel ``ambient`` is column ``temp_ambient``.
+TEMPERATURE_PREFIX = "temp_"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -88,12 +92,7 @@ class Dataset:
 
     def measured_poses_base(self) -> np.ndarray:
         """Measured probe poses ``T_0_S`` ``(N, 4, 4)`` in the robot base frame."""
-        T = self.measured_poses()
-        if self.meta.frame == "base":
-            return T
-        if self.meta.T_W_0 is None:
-            raise DatasetError("dataset poses are in the tracker frame but meta.T_W_0 is unknown")
-        return invert(np.asarray(self.meta.T_W_0, dtype=float))[None] @ T
+        return poses_in_base(self.measured_poses(), self.meta.frame, self.meta.T_W_0)
 
     def subset(self, index: np.ndarray) -> Dataset:
         """The rows at ``index`` (positions), same metadata."""
@@ -108,8 +107,29 @@ def secondary_columns(table: pd.DataFrame) -> list[str]:
     return _numbered(table, "qs")
 
 
-def temperature_columns(table: pd.DataFrame) -> list[str]:
-    return [c for c in table.columns if c.startswith("temp_")]
+def temperature_column(name: str) -> str:
+    """The column of a thermometer channel: ``temp_<name>`` (a column name stays as it is)."""
+    return name if name.startswith(TEMPERATURE_PREFIX) else TEMPERATURE_PREFIX + name
+
+
+def temperature_name(column: str) -> str:
+    """The channel name of a temperature column: ``temp_<name>`` -> ``<name>``."""
+    return column.removeprefix(TEMPERATURE_PREFIX)
+
+
+def temperature_columns(columns: Iterable[str] | pd.DataFrame) -> list[str]:
+    """The temperature columns among ``columns`` (a table's, or feature names), in order."""
+    return [c for c in columns if c.startswith(TEMPERATURE_PREFIX)]
+
+
+def poses_in_base(T: np.ndarray, frame: str, T_W_0: np.ndarray | list | None) -> np.ndarray:
+    """Poses ``(N, 4, 4)`` measured in ``frame`` (``base`` or ``tracker``) in the robot base
+    frame, which a tracker-frame pose needs ``T_W_0`` for."""
+    if frame == "base":
+        return T
+    if T_W_0 is None:
+        raise DatasetError("dataset poses are in the tracker frame but meta.T_W_0 is unknown")
+    return invert(np.asarray(T_W_0, dtype=float))[None] @ T
 
 
 def _numbered(table: pd.DataFrame, prefix: str) -> list[str]:

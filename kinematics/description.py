@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from kinematics.dataset import temperature_name
 from kinematics.description_types import COUPLINGS, JointDH, RobotDescription, SensorRanges
 from kinematics.errors import DescriptionError
 from kinematics.toml_io import load_toml
@@ -90,7 +91,7 @@ def _sensors(raw: dict) -> tuple[SensorRanges, tuple[tuple[str, tuple[int, ...]]
             raise DescriptionError(
                 f"sensors.temperature_links.{channel}: links are joint numbers, got {value!r}"
             )
-        links.append((str(channel).removeprefix("temp_"), tuple(int(v) for v in values)))
+        links.append((temperature_name(str(channel)), tuple(int(v) for v in values)))
     try:
         return SensorRanges(**table), tuple(links)
     except TypeError as exc:

@@ -1,9 +1,13 @@
-"""Features and labels from a dataset, with fixed min-max scaling from the robot description.
+"""Features and labels from arrays, with fixed min-max scaling from the robot description.
 
 Features are the controller joint angles ``q1..qn`` (rad), the elastic deflections
 ``dtheta1..n = qs - q`` (rad, when secondary encoders exist) and temperatures ``temp_<name>``
 (°C). Their scaling ranges come from the description's joint limits and declared sensor ranges,
 never from data, so the scaling of a streaming model never changes.
+
+:func:`features` and :func:`labels` are the one builder from arrays: training reads them from a
+dataset (:func:`dataset_features`, :func:`dataset_labels`), the learner stage and the dashboard
+from data points (:mod:`stream.points`), compensation from a request.
 
 >>> from kinematics.description import load_description
 >>> spec = feature_spec(load_description("ur10"), n_temperatures=1, has_secondary=False)
@@ -15,12 +19,20 @@ np.float64(0.0)
 
 from __future__ import annotations
 
+import re
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from kinematics.dataset import Dataset, joint_columns, secondary_columns
+from kinematics.dataset import (
+    TEMPERATURE_PREFIX,
+    Dataset,
+    secondary_columns,
+    temperature_column,
+    temperature_columns,
+)
 from kinematics.description import RobotDescription
 from kinematics.errors import ConfigError, DatasetError
 from kinematics.transforms import pose_error
@@ -97,7 +109,7 @@ def feature_spec(
         names += [f"dtheta{i}" for i in range(1, n + 1)]
         low += [-d] * n
         high += [d] * n
-    names += [t if t.startswith("temp_") else f"temp_{t}" for t in temps]
+    names += [temperature_column(t) for t in temps]
     low += [desc.sensors.temperature_min_c] * n_temperatures
     high += [desc.sensors.temperature_max_c] * n_temperatures
     return FeatureSpec(names=tuple(names), low=np.array(low), high=np.array(high), description=desc)
@@ -108,28 +120,64 @@ def dataset_feature_spec(
 ) -> FeatureSpec:
     """The spec of every feature ``ds`` has (or a subset: no deflections, no temperatures)."""
     has_secondary = secondary and bool(secondary_columns(ds.table))
-    temps = [c for c in ds.table.columns if c.startswith("temp_")] if temperatures else []
+    temps = temperature_columns(ds.table) if temperatures else []
     return feature_spec(desc, len(temps), has_secondary, tuple(temps))
+
+
+def features(
+    spec: FeatureSpec,
+    q: np.ndarray,
+    deflection: np.ndarray | None = None,
+    temperatures: Mapping[str, np.ndarray | float] | None = None,
+) -> np.ndarray:
+    """Raw SI features ``(N, F)`` in ``spec.names`` order from controller angles ``q`` ``(N, n)``
+    (rad), deflections ``qs - q`` ``(N, n)`` (rad) and temperatures (°C, ``(N,)`` or one value,
+    by channel or column name); a :class:`DatasetError` names the first input missing."""
+    q = np.asarray(q, dtype=float)
+    if q.ndim != 2:
+        raise DatasetError(f"joint angles must have shape (N, n), got {q.shape}")
+    defl = None if deflection is None else np.asarray(deflection, dtype=float)
+    temps = {temperature_column(k): v for k, v in (temperatures or {}).items()}
+    cols = []
+    for name in spec.names:
+        match = _FEATURE.fullmatch(name)
+        if match is None:
+            raise DatasetError(f"unknown feature {name!r}: expected q<i>, dtheta<i> or temp_<name>")
+        kind, i = match[1], int(match[2] or 0) - 1
+        if kind is None:
+            if name not in temps:
+                raise DatasetError(f"no temperature {name!r} for feature {name!r}")
+            cols.append(np.broadcast_to(np.asarray(temps[name], dtype=float), (len(q),)))
+        elif kind == "dtheta":
+            if defl is None or i >= defl.shape[1]:
+                raise DatasetError(f"no deflection (secondary encoder qs{i + 1}) for {name!r}")
+            cols.append(defl[:, i])
+        else:
+            if i >= q.shape[1]:
+                raise DatasetError(f"no joint angle q{i + 1} for feature {name!r}")
+            cols.append(q[:, i])
+    return np.stack(cols, axis=1)
+
+
+#: A feature name: ``q<i>`` or ``dtheta<i>`` (joint ``i``, from 1), or a temperature column.
+_FEATURE = re.compile(rf"(q|dtheta)([1-9][0-9]*)|{re.escape(TEMPERATURE_PREFIX)}.+")
+
+
+def labels(model: RobotModel, q: np.ndarray, T_0_S: np.ndarray) -> np.ndarray:
+    """Labels ``(N, 6)``: the pose error of the measured probe poses ``T_0_S`` ``(N, 4, 4)``
+    (robot base frame) against nominal FK at controller angles ``q`` (m, rad)."""
+    return pose_error(T_0_S, model.fk(q))
 
 
 def dataset_features(ds: Dataset, spec: FeatureSpec) -> np.ndarray:
     """Raw SI features ``(N, F)`` of ``ds`` in ``spec.names`` order."""
     t = ds.table
-    qcols = joint_columns(t)
-    cols = []
-    for name in spec.names:
-        if name.startswith("dtheta"):
-            i = int(name[len("dtheta") :])
-            if f"qs{i}" not in t.columns or f"q{i}" not in t.columns:
-                raise DatasetError(f"dataset has no column 'qs{i}' for feature {name!r}")
-            cols.append(t[f"qs{i}"].to_numpy(float) - t[f"q{i}"].to_numpy(float))
-        elif name in t.columns and (name in qcols or name.startswith("temp_")):
-            cols.append(t[name].to_numpy(float))
-        else:
-            raise DatasetError(f"dataset has no column {name!r} for feature {name!r}")
-    return np.stack(cols, axis=1) if cols else np.empty((len(t), 0))
+    temps = {c: t[c].to_numpy(float) for c in temperature_columns(t) if c in spec.names}
+    needs_deflection = any(n.startswith("dtheta") for n in spec.names)
+    deflection = ds.deflection() if needs_deflection else None
+    return features(spec, ds.q(), deflection, temps)
 
 
 def dataset_labels(ds: Dataset, model: RobotModel) -> np.ndarray:
     """Labels ``(N, 6)``: the pose error of the measured ``T_0_S`` against nominal FK (m, rad)."""
-    return pose_error(ds.measured_poses_base(), model.fk(ds.q()))
+    return labels(model, ds.q(), ds.measured_poses_base())

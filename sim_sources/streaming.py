@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kinematics.dataset import Dataset
+from kinematics.dataset import Dataset, temperature_columns, temperature_name
 from kinematics.errors import ConfigError
 from wire import JointSample, TemperatureSample, TrackerSample
 
@@ -91,9 +91,9 @@ def cell_samples(ds: Dataset, cfg: StreamingConfig) -> Iterator[Sample]:
     tk = visit_times(ds, cfg)
     q = ds.q()
     defl = ds.deflection()
-    temp_cols = [c for c in ds.table.columns if c.startswith("temp_")]
+    temp_cols = temperature_columns(ds.table)
     temps = ds.table[temp_cols].to_numpy(float) if temp_cols else None
-    names = tuple(c[len("temp_") :] for c in temp_cols)
+    names = tuple(temperature_name(c) for c in temp_cols)
     pose = ds.table[["x", "y", "z", "qx", "qy", "qz", "qw"]].to_numpy(float)
     dt = 1.0 / cfg.joint_rate_hz
     t0 = tk[0] - cfg.settle_s - cfg.lead_s

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from kinematics.dataset import Dataset, DatasetMeta, write_dataset
+from kinematics.dataset import Dataset, DatasetMeta, temperature_column, write_dataset
 from kinematics.description import JointDH, RobotDescription, description_to_toml
 from kinematics.transforms import transform_from_xyz_rpy, xyz_quat_from_transform
 
@@ -257,7 +257,7 @@ def unseen_campaign(spec: UnseenSpec) -> tuple[Dataset, RobotDescription, dict]:
     if secondary:
         qs = q + (dq if spec.hidden == "joint_compliance" else 0) + rng.normal(0, 2e-6, q.shape)
         table |= {f"qs{i + 1}": qs[:, i] for i in range(n)}
-    table |= {f"temp_{name}": temps[:, c] for c, name in enumerate(names)}
+    table |= {temperature_column(name): temps[:, c] for c, name in enumerate(names)}
     xyz, quat = xyz_quat_from_transform(measured)
     table |= dict(zip("xyz", xyz.T, strict=True))
     table |= dict(zip(("qx", "qy", "qz", "qw"), quat.T, strict=True))

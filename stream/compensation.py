@@ -31,9 +31,10 @@ from typing import ClassVar
 
 import numpy as np
 
-from kinematics.errors import ConfigError
+from kinematics.errors import ConfigError, DatasetError
 from kinematics.model import RobotModel
 from kinematics.transforms import apply_error, pose_error, transform_from_xyz_quat
+from learner.features import features
 from learner.model import ErrorModel
 from wire import JOINT_LIMIT_RAD, RejectedMessageError, check_finite
 
@@ -153,27 +154,15 @@ class CompensationReply:
         return None
 
 
-def features_at(
-    names: tuple[str, ...],
-    q: np.ndarray,
-    deflection: np.ndarray | None,
-    temperatures: Mapping[str, float] | None,
-) -> np.ndarray:
-    """Raw features ``(1, F)`` in ``names`` order for one command (no deflection -> zero)."""
-    temps = {
-        (k if k.startswith("temp_") else f"temp_{k}"): v for k, v in (temperatures or {}).items()
-    }
-    row = []
-    for name in names:
-        if name.startswith("dtheta"):
-            row.append(0.0 if deflection is None else float(deflection[int(name[6:]) - 1]))
-        elif name.startswith("temp_"):
-            if name not in temps:
-                raise RejectedMessageError("malformed", f"request lacks temperature {name!r}")
-            row.append(float(temps[name]))
-        else:
-            row.append(float(q[int(name[1:]) - 1]))
-    return np.array([row])
+def request_features(model: ErrorModel, req: CompensationRequest, q: np.ndarray) -> np.ndarray:
+    """Raw features ``(1, F)`` of ``req`` at the command ``q`` (rad), through the learner's one
+    builder: the request's deflection (zero without one) and temperatures (°C, by channel or
+    column name); ``malformed`` when it lacks a temperature the model needs."""
+    defl = np.zeros(len(q)) if req.deflection is None else np.asarray(req.deflection, dtype=float)
+    try:
+        return features(model.spec, q[None], defl[None], req.temperatures)
+    except DatasetError as exc:
+        raise RejectedMessageError("malformed", f"request: {exc}") from None
 
 
 def controller_jacobian(robot: RobotModel, q: np.ndarray) -> np.ndarray:
@@ -202,8 +191,7 @@ def compensate(
 ) -> CompensationReply:
     """Predict the error at ``req.q`` and the command that lands on the target (pure)."""
     q0 = np.asarray(req.q, dtype=float)
-    defl = None if req.deflection is None else np.asarray(req.deflection, dtype=float)
-    pred0 = model.predict(features_at(model.feature_names, q0, defl, req.temperatures))
+    pred0 = model.predict(request_features(model, req, q0))
     residual_at = residual_function(model, robot, req)
     q, r, iterations = solve(residual_at, robot, q0, cfg, cfg.max_iterations, cfg.max_step_rad)
     residual = float(np.linalg.norm(r[:3]))
@@ -244,10 +232,9 @@ def residual_function(
     """``q -> pose_error(target, predicted pose at q)`` (6,) m, rad, for the request's target
     and features."""
     target = _target(robot, req)
-    defl = None if req.deflection is None else np.asarray(req.deflection, dtype=float)
 
     def residual_at(q: np.ndarray) -> np.ndarray:
-        e = model.predict(features_at(model.feature_names, q, defl, req.temperatures)).mean
+        e = model.predict(request_features(model, req, q)).mean
         return pose_error(target[None], apply_error(robot.fk(q[None]), e))[0]
 
     return residual_at

@@ -36,7 +36,7 @@ from stream.compensation import (
     CompensationRequest,
     best_effort,
     compensate,
-    features_at,
+    request_features,
     residual_function,
 )
 
@@ -186,9 +186,7 @@ def _refused(
     zeros = (0.0,) * 6
     error, lo, hi, ale, epi = zeros, zeros, zeros, zeros, zeros
     try:
-        defl = None if req.deflection is None else np.asarray(req.deflection, dtype=float)
-        x = features_at(model.feature_names, np.asarray(req.q, dtype=float), defl, req.temperatures)
-        pred = model.predict(x)
+        pred = model.predict(request_features(model, req, np.asarray(req.q, dtype=float)))
         lo_, hi_ = pred.interval(cfg.level)
         error, lo, hi = (tuple(float(v) for v in a[0]) for a in (pred.mean, lo_, hi_))
         ale = tuple(float(v) for v in pred.aleatoric()[0])

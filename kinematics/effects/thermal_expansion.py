@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from kinematics.dataset import temperature_column
 from kinematics.description import RobotDescription
 from kinematics.effects._base import Conditions, Effect, Perturbation
 from kinematics.errors import ConfigError
@@ -86,7 +87,10 @@ class ThermalExpansion(Effect):
 
     def needs(self, model: RobotModel, cond: Conditions) -> str | None:
         if cond.temperatures is None or not cond.temperature_names:
-            return "needs temperature channels (temp_<name> columns); the dataset has none"
+            return (
+                f"needs temperature channels ({temperature_column('<name>')} columns); "
+                "the dataset has none"
+            )
         return None
 
     def parameter_names(self, desc: RobotDescription) -> tuple[str, ...]:

@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from kinematics import identity
-from kinematics.dataset import Dataset, temperature_columns
+from kinematics.dataset import Dataset, temperature_columns, temperature_name
 from kinematics.description import RobotDescription
 from kinematics.effects._base import Conditions
 from kinematics.frames import fit_frames
@@ -117,7 +117,7 @@ def observations_from_dataset(ds: Dataset, desc: RobotDescription) -> Observatio
         q=q,
         t=ds.table["t"].to_numpy(float),
         temperatures=ds.temperatures(),
-        temperature_names=tuple(c.removeprefix("temp_") for c in temp_cols),
+        temperature_names=tuple(temperature_name(c) for c in temp_cols),
         approach=np.sign(approach),
         payload_kg=0.0 if payload is None else payload[:, 0],
         tool_force_n=force,

@@ -14,13 +14,12 @@ import numpy as np
 import zenoh
 
 from kinematics.model import RobotModel
-from learner.features import dataset_features, dataset_labels
 from learner.model import ErrorModel
 from stream.bus import Received
 from stream.compensation import CompensationReply
 from stream.dashboard import Dashboard, PointBatch
 from stream.log import JsonLogger
-from stream.points import points_to_dataset
+from stream.points import point_arrays
 from stream.stages._base import Stage
 from stream.stages.compensation_service import adopt
 from stream.trust import ModelGate, ModelTrustConfig
@@ -100,19 +99,19 @@ class DashboardStage(Stage):
             return
         pending, self._pending = self._pending, []
         points = [p for p, _ in pending]
-        ds = points_to_dataset(points, self.robot_model.description.name, self.T_W_0)
+        arrays = point_arrays(points, self.T_W_0)
         prediction = None
         if self.model is not None:
-            prediction = self.model.predict(dataset_features(ds, self.model.spec))
+            prediction = self.model.predict(arrays.features(self.model.spec))
         self.dashboard.log_points(
             PointBatch(
                 seq=np.array([p.seq for p in points]),
                 received_t=np.array([t for _, t in pending]),
-                q=ds.q(),
-                temperature_names=points[0].temperature_names,
-                temperatures=np.array([p.temperatures for p in points], dtype=float),
-                positions_m=ds.measured_poses_base()[:, :3, 3],
-                errors_m=dataset_labels(ds, self.robot_model),
+                q=arrays.q,
+                temperature_names=arrays.temperature_names,
+                temperatures=arrays.temperatures,
+                positions_m=arrays.T_0_S[:, :3, 3],
+                errors_m=arrays.labels(self.robot_model),
                 prediction=prediction,
             )
         )

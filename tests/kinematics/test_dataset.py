@@ -10,7 +10,11 @@ from kinematics.dataset import (
     Dataset,
     DatasetMeta,
     meta_path,
+    poses_in_base,
     read_dataset,
+    temperature_column,
+    temperature_columns,
+    temperature_name,
     validate,
     write_dataset,
 )
@@ -73,6 +77,16 @@ def test_accessors():
     xyz, quat = xyz_quat_from_transform(T_W_S)
     np.testing.assert_allclose(xyz, ds.table[["x", "y", "z"]].to_numpy())
     assert len(ds.subset(np.array([3, 1]))) == 2
+    with pytest.raises(DatasetError, match="T_W_0 is unknown"):
+        poses_in_base(T_W_S, "tracker", None)
+
+
+def test_one_rule_for_temperature_channels():
+    assert temperature_column("ambient") == temperature_column("temp_ambient") == "temp_ambient"
+    assert temperature_name("temp_ambient") == "ambient" == temperature_name("ambient")
+    assert temperature_name(temperature_column("temp")) == "temp"
+    assert temperature_columns(make().table) == ["temp_ambient", "temp_j2"]
+    assert temperature_columns(("q1", "dtheta1", "temp_j2", "temperature")) == ["temp_j2"]
 
 
 def write_edited(tmp_path, edit) -> str:

@@ -5,7 +5,15 @@ from kinematics.description import load_description
 from kinematics.errors import ConfigError, DatasetError
 from kinematics.model import RobotModel
 from kinematics.transforms import pose_error
-from learner.features import dataset_feature_spec, dataset_features, dataset_labels, feature_spec
+from learner.features import (
+    FeatureSpec,
+    dataset_feature_spec,
+    dataset_features,
+    dataset_labels,
+    feature_spec,
+    features,
+    labels,
+)
 from tests.learner.conftest import make_dataset
 
 FANUC = load_description("fanuc_m900ib700")
@@ -66,6 +74,33 @@ def test_missing_column_and_bad_spec_raise(small_ds):
         feature_spec(FANUC, 2, False, ("a",))
     with pytest.raises(DatasetError, match=r"shape \(N, 7\)"):
         spec.scale(np.zeros((3, 6)))
+
+
+def test_one_builder_from_arrays(small_ds):
+    spec = dataset_feature_spec(small_ds, FANUC)
+    temps = small_ds.temperatures()
+    by_channel = {"link2": temps[:, 0], "temp_link4": temps[:, 1]}  # channel or column names
+    X = features(spec, small_ds.q(), small_ds.deflection(), by_channel)
+    assert X.tobytes() == dataset_features(small_ds, spec).tobytes()
+    model = RobotModel(FANUC)
+    Y = labels(model, small_ds.q(), small_ds.measured_poses_base())
+    assert Y.tobytes() == dataset_labels(small_ds, model).tobytes()
+    one = features(spec, small_ds.q()[:1], np.zeros((1, 6)), {"link2": 30, "link4": 31.5})
+    assert one[0, 6:].tolist() == [0.0] * 6 + [30.0, 31.5]  # one value per channel, deflection 0
+
+
+def test_builder_names_what_is_missing(small_ds):
+    spec = dataset_feature_spec(small_ds, FANUC)
+    q = small_ds.q()
+    with pytest.raises(DatasetError, match="qs1"):
+        features(spec, q, None, {"link2": 20.0, "link4": 20.0})
+    with pytest.raises(DatasetError, match="temp_link4"):
+        features(spec, q, q * 0, {"link2": 20.0})
+    with pytest.raises(DatasetError, match="q6"):
+        features(spec, q[:, :5], q * 0, {"link2": 20.0, "link4": 20.0})
+    odd = FeatureSpec(names=("q1", "speed"), low=np.zeros(2), high=np.ones(2))
+    with pytest.raises(DatasetError, match="unknown feature 'speed'"):
+        features(odd, q, None, None)
 
 
 def test_synthetic_dataset_is_seeded():

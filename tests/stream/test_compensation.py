@@ -1,18 +1,22 @@
 """Compensation maths with a real trained error model and the pinocchio Jacobian."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from kinematics.description import load_description
 from kinematics.model import RobotModel
 from kinematics.transforms import apply_error, pose_error, xyz_quat_from_transform
-from learner.config import ModelConfig
+from learner.config import ModelConfig, TrainConfig
+from learner.features import feature_spec
+from learner.model import ErrorModel
 from stream.compensation import (
     CompensationConfig,
     CompensationRequest,
     compensate,
     controller_jacobian,
-    features_at,
+    request_features,
 )
 from wire import RejectedMessageError, decode, encode
 
@@ -103,11 +107,17 @@ def test_far_from_the_data_is_untrusted(fanuc):
 
 
 def test_request_validation_and_features():
-    names = ("q1", "q2", "dtheta1", "temp_ambient")
-    X = features_at(names, np.array([0.1, 0.2]), np.array([1e-4, 0.0]), {"ambient": 21.0})
-    np.testing.assert_allclose(X, [[0.1, 0.2, 1e-4, 21.0]])
-    with pytest.raises(RejectedMessageError, match="temp_ambient"):
-        features_at(names, np.zeros(2), None, {})
+    spec = feature_spec(load_description("ur10"), 1, True, ("ambient",))
+    model = ErrorModel.create(spec, ModelConfig(hidden_layers=1, neurons=4), TrainConfig(), 0)
+    q = np.arange(6) / 10
+    req = CompensationRequest(q=(0.0,) * 6, deflection=(1e-4,) + (0.0,) * 5, temperatures={})
+    X = request_features(model, replace(req, temperatures={"ambient": 21}), q)
+    assert X.tolist() == [[*q, 1e-4, *[0.0] * 5, 21.0]]  # exactly: no arithmetic on the way
+    X = request_features(model, replace(req, deflection=None, temperatures={"temp_ambient": 9}), q)
+    assert X[0, 6:].tolist() == [0.0] * 6 + [9.0]  # no deflection reads zero
+    with pytest.raises(RejectedMessageError, match="temp_ambient") as err:
+        request_features(model, req, q)
+    assert err.value.reason == "malformed"
     good = CompensationRequest(q=(0.0,) * 6, temperatures={"a": 20.0})
     assert decode(encode(good), CompensationRequest) == good
     bad = encode(good).replace(b'"target_xyz":null', b'"target_xyz":[1,2,3]')
