@@ -1,11 +1,13 @@
-"""Benchmark of the hyperparameter search on the simulated reference campaign.
+"""Benchmark of the hyperparameter search: selected model against the learner's defaults.
 
-Splits the dataset 90/10 (seed 0), runs the same search twice on the 90 % (Hyperband, then
-``NopPruner``, same seed), and compares the wall and CPU times and the test accuracy (mm) of
-the selected model with a model of the learner's default configs trained on the same 90 %.
+Splits the dataset 90/10 (seed 0), identifies the physics base on the 90 % (``--base``), runs
+the search on the 90 % (Hyperband; with ``--nop`` again with ``NopPruner``, same seed), and
+scores on the 10 % (mm) the selected model as ``robocal hpo`` retrains it against the
+learner's default configs trained the same way (the search's trial 0 scores the defaults on
+its own folds). Any dataset: the paper campaign or an imported UR10 series.
 
-    .venv/bin/python bench/hpo.py                       # the full search: 30 trials, 5 folds
-    .venv/bin/python bench/hpo.py --small --epochs 4 --min-epochs 1   # what fits 2 cores
+    .venv/bin/python bench/hpo.py --workers 2           # 30 trials, 5 folds, paper campaign
+    .venv/bin/python bench/hpo.py --data /tmp/a.parquet --workers 2   # UR10 Series A
 
 ``--small`` narrows the space to 1-3 hidden layers, 16-128 neurons and batches of 32-64 (the
 other ranges stay DESIGN's). CPU times are printed beside wall times: the cores are shared.
@@ -28,10 +30,12 @@ import optuna
 import torch
 
 from kinematics.dataset import read_dataset
+from learner.base import DEFAULT_BASE, data_frame, make_base
 from learner.config import ModelConfig, TrainConfig
 from learner.features import FeatureSpec
 from learner.hpo import HpoConfig, dataset_arrays, search
 from learner.hpo_space import SearchSpace, load_space
+from learner.hpo_study import open_storage
 from learner.metrics import accuracy_report
 from learner.model import ErrorModel
 
@@ -48,19 +52,37 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--default-epochs", type=int, default=TrainConfig().max_epochs)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
-    parser.add_argument("--skip-nop", action="store_true", help="no NopPruner search")
+    parser.add_argument("--nop", action="store_true", help="also search with NopPruner")
+    parser.add_argument("--workers", type=int, default=1, help="worker processes")
+    parser.add_argument("--trial-work", type=float, default=HpoConfig().trial_work)
+    parser.add_argument("--base", default=DEFAULT_BASE, help="nominal, geometric, auto, FILE")
     parser.add_argument("--skip-search", action="store_true", help="only the defaults model")
     parser.add_argument("--skip-defaults", action="store_true", help="no defaults model")
     return parser.parse_args()
 
 
-def run_search(name: str, cfg: HpoConfig, space: SearchSpace, data: tuple, tmp: Path) -> dict:
+def run_search(
+    name: str, cfg: HpoConfig, space: SearchSpace, data: tuple, tmp: Path, workers: int
+) -> dict:
     """One search on the training split; its times, counts, selection and test accuracy."""
-    spec, X, Y, train, test, robot = data
+    spec, X, Y, train, test, robot, base = data
     t0, c0 = time.perf_counter(), time.process_time()
-    res = search(spec, X[train], Y[train], cfg, tmp / f"{name}.journal", space=space, robot=robot)
+    res = search(
+        spec,
+        X[train],
+        Y[train],
+        cfg,
+        tmp / f"{name}.journal",
+        space=space,
+        robot=robot,
+        base=base,
+        workers=workers,
+    )
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     acc = accuracy_report(res.model, X[test], Y[test]).to_dict()
+    storage = open_storage(tmp / f"{name}.journal")
+    trial0 = optuna.load_study(study_name=cfg.study, storage=storage).trials[0]
+    ranks = sorted(r.value for r in res.top)
     print(
         f"{name}: {wall:.1f} s wall, {cpu:.1f} s cpu, {res.complete} complete, "
         f"{res.pruned} pruned; selected trial {res.selected.number} "
@@ -77,6 +99,8 @@ def run_search(name: str, cfg: HpoConfig, space: SearchSpace, data: tuple, tmp: 
         "best": dataclasses.asdict(res.best),
         "selected": dataclasses.asdict(res.selected),
         "retrain_epochs": res.retrain_epochs,
+        "trial0": {"params": trial0.params, "state": trial0.state.name, "value": trial0.value},
+        "trial0_rank_in_top": ranks.index(trial0.value) if trial0.value in ranks else None,
         "test": acc,
     }
 
@@ -87,16 +111,20 @@ def warm_up(spec: FeatureSpec, X: np.ndarray, Y: np.ndarray) -> None:
     model.fit(X, Y, max_epochs=2)
 
 
-def defaults_model(data: tuple, epochs: int, seed: int) -> dict:
-    """The learner's default configs trained on the 90 % and scored on the 10 %."""
-    spec, X, Y, train, test, robot = data
+def trained_like_defaults(
+    name: str, data: tuple, model_cfg: ModelConfig, train_cfg: TrainConfig
+) -> dict:
+    """A model of these configs trained on the 90 % as ``robocal train`` does (10 %
+    validation, best epoch, early stopping) and scored on the 10 %."""
+    spec, X, Y, train, test, robot, base = data
     t0, c0 = time.perf_counter(), time.process_time()
-    cfg = TrainConfig(seed=seed, max_epochs=epochs)
-    model = ErrorModel.create(spec, ModelConfig(), cfg, seed=seed, robot=robot)
+    seed = train_cfg.seed
+    model = ErrorModel.create(spec, model_cfg, train_cfg, seed=seed, robot=robot, base=base)
+    torch.manual_seed(seed)
     report = model.fit(X[train], Y[train])
     acc = accuracy_report(model, X[test], Y[test]).to_dict()
     print(
-        f"learner defaults: test mean {acc['mean_mm']:.4f} mm "
+        f"{name}: test mean {acc['mean_mm']:.4f} mm "
         f"({model.n_weights} weights, {report.epochs} epochs)",
         flush=True,
     )
@@ -123,7 +151,8 @@ def main() -> None:
     order = np.random.default_rng(args.seed).permutation(len(X))
     n_test = round(0.1 * len(X))
     test, train = order[:n_test], order[n_test:]
-    data = (spec, X, Y, train, test, ds.meta.robot)
+    base = make_base(args.base, spec, X[train], Y[train], data_frame(ds))
+    data = (spec, X, Y, train, test, ds.meta.robot, base)
     warm_up(spec, X[:64], Y[:64])
     space = load_space(args.space) if args.space else SearchSpace()
     if args.small:
@@ -135,6 +164,7 @@ def main() -> None:
         folds=args.folds,
         max_epochs=args.epochs,
         min_epochs=args.min_epochs,
+        trial_work=args.trial_work,
         seed=args.seed,
     )
     uncal = float(np.mean(np.linalg.norm(Y[test, :3], axis=1)) * 1e3)
@@ -147,13 +177,14 @@ def main() -> None:
         "config": dataclasses.asdict(cfg) | {"space": dataclasses.asdict(space)},
     }
     runs = [] if args.skip_search else [("hyperband", cfg)]
-    if not (args.skip_search or args.skip_nop):
+    if args.nop and not args.skip_search:
         runs.append(("nop", dataclasses.replace(cfg, prune=False)))
     with tempfile.TemporaryDirectory() as tmp:
         for name, run_cfg in runs:
-            results[name] = run_search(name, run_cfg, space, data, Path(tmp))
+            results[name] = run_search(name, run_cfg, space, data, Path(tmp), args.workers)
     if not args.skip_defaults:
-        results["defaults"] = defaults_model(data, args.default_epochs, args.seed)
+        full = TrainConfig(seed=args.seed, max_epochs=args.default_epochs)
+        results["defaults"] = trained_like_defaults("learner defaults", data, ModelConfig(), full)
     if "nop" in results:
         for key in ("wall", "cpu"):
             saved = 100 * (1 - results["hyperband"][f"{key}_s"] / results["nop"][f"{key}_s"])

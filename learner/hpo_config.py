@@ -36,7 +36,9 @@ class HpoConfig:
     """The search: trial budget, CV folds, epochs per fold (capped by ``trial_work``, see the
     module docstring), Hyperband rungs, selection, and whether the folds of a trial train as
     one batched model (:mod:`learner.hpo_batched`) or one after the other. ``timeout_s`` (s)
-    bounds the whole search, the running trial included."""
+    bounds the whole search, the running trial included. ``defaults_first``: trial 0 is the
+    learner's default configs; selection takes the fewest weights among the ``top_k`` best
+    within ``select_within`` (fraction of the best CV score)."""
 
     trials: int = 50
     timeout_s: float | None = None
@@ -49,6 +51,8 @@ class HpoConfig:
     startup_trials: int = 10
     prune: bool = True
     top_k: int = 10
+    select_within: float = 0.1
+    defaults_first: bool = True
     seed: int = 0
     study: str = "robocal-hpo"
 
@@ -71,6 +75,8 @@ class HpoConfig:
             raise ConfigError(f"hpo.timeout_s must be > 0, got {self.timeout_s}")
         if not self.trial_work > 0:
             raise ConfigError(f"hpo.trial_work must be > 0 (inf: no cap), got {self.trial_work}")
+        if not self.select_within >= 0:
+            raise ConfigError(f"hpo.select_within must be >= 0, got {self.select_within}")
         if not self.study:
             raise ConfigError("hpo.study must be a non-empty name, got ''")
 

@@ -18,13 +18,14 @@ scale. A TOML file names only the ranges it changes:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import optuna
 
 from kinematics.errors import ConfigError
 from kinematics.toml_io import load_toml
+from learner.config import ModelConfig, TrainConfig
 
 ACTIVATIONS = ("elu", "relu", "gelu")
 
@@ -90,6 +91,24 @@ def suggest(trial: optuna.Trial, space: SearchSpace) -> TrialParams:
         weight_decay=trial.suggest_float("weight_decay", *space.weight_decay, log=True),
         dropout=trial.suggest_float("dropout", *space.dropout),
     )
+
+
+def learner_defaults(space: SearchSpace) -> dict | None:
+    """The learner's default configs as parameters of ``space`` (None where the space excludes
+    them): a search's first trial, so every study scores the defaults on its own folds."""
+    m, t = ModelConfig(), TrainConfig()
+    p = TrialParams(
+        hidden_layers=m.hidden_layers,
+        neurons=m.neurons,
+        activation=m.activation,
+        batch_size=t.batch_size,
+        lr=t.lr,
+        weight_decay=t.weight_decay,
+        dropout=m.dropout,
+    )
+    ranged = [f.name for f in fields(SearchSpace) if f.name != "activations"]
+    inside = all(getattr(space, k)[0] <= getattr(p, k) <= getattr(space, k)[1] for k in ranged)
+    return asdict(p) if inside and p.activation in space.activations else None
 
 
 def space_from_dict(raw: dict) -> SearchSpace:

@@ -184,9 +184,11 @@ def run_trials(
     timeout_s: float | None = None,
     lock: Path | Callable[[], contextlib.AbstractContextManager[None]] | None = None,
     on_trial: Callable[[Progress], None] | None = None,
+    first: dict[str, Any] | None = None,
 ) -> list[int]:
     """Run trials until the study holds ``n_trials`` finished or running ones (or the timeout
-    passes); return the numbers of the trials this worker ran.
+    passes); return the numbers of the trials this worker ran. ``first`` (parameters) is
+    enqueued as trial 0 of an empty study, under the lock, so it runs once whatever the workers.
 
     ``objective`` may raise ``optuna.TrialPruned``; any other exception fails the trial and
     propagates.
@@ -200,6 +202,8 @@ def run_trials(
             fail_stale_trials(study)
             if len(study.get_trials(deepcopy=False, states=COUNTED)) >= n_trials:
                 break
+            if first is not None and not study.get_trials(deepcopy=False):
+                study.enqueue_trial(first)
             trial = study.ask()
             trial.set_user_attr(WORKER_ATTR, _worker_id())
         mine.append(trial.number)
@@ -249,13 +253,16 @@ def top_trials(study: optuna.Study, k: int) -> list[FrozenTrial]:
     return sorted(finite, key=lambda t: (t.value, t.number))[:k]
 
 
-def select_trial(study: optuna.Study, top_k: int = 10) -> FrozenTrial:
-    """Among the ``top_k`` best complete trials, the one with the fewest weights
-    (user attribute ``n_weights``; ties go to the lower value)."""
+def select_trial(study: optuna.Study, top_k: int = 10, within: float = 0.1) -> FrozenTrial:
+    """Among the ``top_k`` best complete trials that score within ``within`` (a fraction) of
+    the best value, the one with the fewest weights (user attribute ``n_weights``; ties go to
+    the lower value). DESIGN.md's "ten best" alone picked, in a 30-trial study whose work
+    budget starves deep networks, a trial 33 x worse than the best (BENCHMARKS.md, issue 17)."""
     best = top_trials(study, top_k)
     if not best:
         raise ConfigError(f"study {study.study_name!r} has no complete trial to select from")
-    return min(best, key=lambda t: (t.user_attrs.get("n_weights", float("inf")), t.value))
+    close = [t for t in best if t.value <= best[0].value * (1.0 + within)]
+    return min(close, key=lambda t: (t.user_attrs.get("n_weights", float("inf")), t.value))
 
 
 def _worker_id() -> str:

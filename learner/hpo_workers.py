@@ -23,7 +23,7 @@ from learner.features import FeatureSpec
 from learner.hpo_config import HpoConfig
 from learner.hpo_lock import study_lock
 from learner.hpo_objective import cv_objective
-from learner.hpo_space import SearchSpace
+from learner.hpo_space import SearchSpace, learner_defaults
 from learner.hpo_study import make_study, open_storage, run_trials
 
 
@@ -97,4 +97,6 @@ def _work(
     if left == 0.0:
         return
     objective = cv_objective(spec, X, Y, space, cfg, base, deadline)
-    run_trials(study, objective, cfg.trials, timeout_s=left, lock=study_lock(storage, cfg.study))
+    first = learner_defaults(space) if cfg.defaults_first else None
+    lock = study_lock(storage, cfg.study)
+    run_trials(study, objective, cfg.trials, timeout_s=left, lock=lock, first=first)

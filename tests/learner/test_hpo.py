@@ -27,8 +27,9 @@ from kinematics.description import load_description
 from kinematics.errors import ConfigError
 from kinematics.model import RobotModel
 from kinematics.transforms import xyz_quat_from_transform
+from learner.config import ModelConfig, TrainConfig
 from learner.hpo import HpoConfig, cv_folds, dataset_arrays, search
-from learner.hpo_space import SearchSpace, load_space, space_from_dict
+from learner.hpo_space import SearchSpace, learner_defaults, load_space, space_from_dict, suggest
 from learner.hpo_study import (
     WORKER_ATTR,
     fail_stale_trials,
@@ -157,7 +158,8 @@ def test_search_prunes_with_real_training(arrays, tmp_path):
     for t in complete:
         assert t.intermediate_values[max(t.intermediate_values)] == pytest.approx(t.value)
     top = sorted(complete, key=lambda t: t.value)[:3]
-    assert result.selected.n_weights == min(t.user_attrs["n_weights"] for t in top)
+    close = [t for t in top if t.value <= 1.1 * top[0].value]
+    assert result.selected.n_weights == min(t.user_attrs["n_weights"] for t in close)
     assert [r.number for r in result.top] == [t.number for t in top]
     assert f"*{result.selected.number:>6}" in result.table()
     assert json.loads(json.dumps(result.to_dict()))["selected"]["number"] == result.selected.number
@@ -225,11 +227,39 @@ def test_selection_prefers_fewest_weights_among_top_k():
                 user_attrs={"n_weights": n_weights},
             )
         )
-    assert select_trial(study, top_k=4).user_attrs["n_weights"] == 100
-    assert select_trial(study, top_k=1).user_attrs["n_weights"] == 5000
-    assert select_trial(study, top_k=10).user_attrs["n_weights"] == 10  # never the diverged one
+    inf = float("inf")
+    assert select_trial(study, top_k=4, within=inf).user_attrs["n_weights"] == 100
+    assert select_trial(study, top_k=1, within=inf).user_attrs["n_weights"] == 5000
+    assert select_trial(study, top_k=10, within=inf).user_attrs["n_weights"] == 10  # never inf
+    # only trials scoring within 10 % / 100 % / 300 % of the best (0.05) compete on size
+    assert select_trial(study, top_k=10).user_attrs["n_weights"] == 5000
+    assert select_trial(study, top_k=10, within=1.0).user_attrs["n_weights"] == 900
+    assert select_trial(study, top_k=10, within=3.0).user_attrs["n_weights"] == 300
     with pytest.raises(ConfigError, match="no complete trial"):
         select_trial(optuna.create_study(), top_k=3)
+
+
+def test_learner_defaults_run_first_and_once(tmp_path):
+    first = learner_defaults(SearchSpace())
+    assert first == {
+        "hidden_layers": ModelConfig().hidden_layers,
+        "neurons": ModelConfig().neurons,
+        "activation": ModelConfig().activation,
+        "batch_size": TrainConfig().batch_size,
+        "lr": TrainConfig().lr,
+        "weight_decay": TrainConfig().weight_decay,
+        "dropout": ModelConfig().dropout,
+    }
+    assert learner_defaults(TINY) is None  # 64 neurons lie outside TINY's 4..16
+
+    def objective(trial: optuna.Trial) -> float:
+        return suggest(trial, SearchSpace()).lr
+
+    storage = open_storage(tmp_path / "j.journal")
+    for total in (2, 4):  # a resume (or a second worker) must not enqueue the defaults again
+        study = make_study(storage, "s", seed=0, max_resource=1)
+        run_trials(study, objective, total, lock=tmp_path / "lock", first=first)
+    assert [t.params == first for t in study.trials] == [True, False, False, False]
 
 
 def test_running_trial_of_a_dead_worker_is_failed(tmp_path):
