@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from kinematics.dataset import read_dataset
+from kinematics.error_stats import ErrorStats
 from kinematics.model import RobotModel
 from learner.base import data_frame, make_base
 from learner.config import ModelConfig, TrainConfig
@@ -27,8 +28,8 @@ from learner.workflow import prepare
 
 
 def _position_stats(residual: np.ndarray) -> dict:
-    d = np.linalg.norm(residual[:, :3], axis=1) * 1e3
-    return {"mean_mm": d.mean(), "p95_mm": np.percentile(d, 95), "max_mm": d.max()}
+    s = ErrorStats.of(np.linalg.norm(residual[:, :3], axis=1) * 1e3)
+    return {"mean_mm": s.mean_mm, "p95_mm": s.p95_mm, "max_mm": s.max_mm}
 
 
 def plain_mlp(X: np.ndarray, Y: np.ndarray, Xte: np.ndarray, seed: int, epochs: int) -> np.ndarray:

@@ -14,31 +14,23 @@ import numpy as np
 
 from kinematics.dataset import Dataset, read_dataset, validate
 from kinematics.description import RobotDescription
+from kinematics.error_stats import ErrorStats
 from kinematics.identity import description_for
 from kinematics.model import RobotModel
 from kinematics.transforms import ARCMIN_PER_RAD, pose_error, rotation_angle
 
 
 @dataclass(frozen=True, kw_only=True)
-class AccuracySummary:
-    """Position error statistics (mm), orientation error (arcmin), the per-point errors and the
+class AccuracySummary(ErrorStats):
+    """Position (mm) and orientation (arcmin) error statistics, the per-point errors and the
     robot (description name) they are against."""
 
-    n: int
-    mean_mm: float
-    std_mm: float
-    max_mm: float
-    p95_mm: float
-    mean_arcmin: float
-    max_arcmin: float
     errors_mm: np.ndarray
     errors_arcmin: np.ndarray
     robot: str = ""
 
-    def to_dict(self) -> dict[str, float | int]:
-        """The stable scalar keys of ``robocal data summary --json``."""
-        keys = ("n", "mean_mm", "std_mm", "max_mm", "p95_mm", "mean_arcmin", "max_arcmin")
-        return {k: getattr(self, k) for k in keys}
+    #: The stable scalar keys of ``robocal data summary --json``.
+    KEYS = ("n", "mean_mm", "std_mm", "max_mm", "p95_mm", "mean_arcmin", "max_arcmin")
 
 
 def nominal_poses(ds: Dataset, desc: RobotDescription) -> np.ndarray:
@@ -54,18 +46,7 @@ def accuracy_summary(ds: Dataset, desc: RobotDescription) -> AccuracySummary:
     mm = 1e3 * np.linalg.norm(pose_error(measured, nominal)[:, :3], axis=1)
     dR = measured[:, :3, :3] @ np.swapaxes(nominal[:, :3, :3], 1, 2)
     arcmin = ARCMIN_PER_RAD * rotation_angle(dR)
-    return AccuracySummary(
-        n=int(mm.size),
-        mean_mm=float(mm.mean()),
-        std_mm=float(mm.std(ddof=1)) if mm.size > 1 else 0.0,
-        max_mm=float(mm.max()),
-        p95_mm=float(np.percentile(mm, 95)),
-        mean_arcmin=float(arcmin.mean()),
-        max_arcmin=float(arcmin.max()),
-        errors_mm=mm,
-        errors_arcmin=arcmin,
-        robot=desc.name,
-    )
+    return AccuracySummary.of(mm, arcmin, errors_mm=mm, errors_arcmin=arcmin, robot=desc.name)
 
 
 def summarize_file(path: str | Path, *, robot: str | None = None) -> AccuracySummary:

@@ -32,6 +32,7 @@ from kinematics.effects._base import (
     Restricted,
     frame_correction,
 )
+from kinematics.error_stats import ErrorStats
 from kinematics.errors import ConfigError, IdentifiabilityError
 from kinematics.identification.conditions import (
     Observations,
@@ -115,20 +116,11 @@ class GeometricFrames(Restricted):
         super().__init__(_DhAndFrames(desc), desc, free)
 
 
-@dataclass(frozen=True, kw_only=True)
-class ResidualStats:
+class ResidualStats(ErrorStats):
     """Position (mm) and orientation (arcmin) residual statistics of ``n`` points."""
 
-    n: int
-    mean_mm: float
-    rms_mm: float
-    std_mm: float
-    max_mm: float
-    mean_arcmin: float
-    max_arcmin: float
-
-    def to_dict(self) -> dict[str, float]:
-        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+    #: The keys of ``robocal calibrate --json``'s and ``robocal gap --json``'s residuals.
+    KEYS = ("n", "mean_mm", "rms_mm", "std_mm", "max_mm", "mean_arcmin", "max_arcmin")
 
 
 def residual_stats(T_measured: np.ndarray, T_predicted: np.ndarray) -> ResidualStats:
@@ -136,15 +128,7 @@ def residual_stats(T_measured: np.ndarray, T_predicted: np.ndarray) -> ResidualS
     d = np.linalg.norm(T_measured[:, :3, 3] - T_predicted[:, :3, 3], axis=1) * 1e3
     R = np.einsum("nij,nkj->nik", T_measured[:, :3, :3], T_predicted[:, :3, :3])
     ang = ARCMIN_PER_RAD * rotation_angle(R)
-    return ResidualStats(
-        n=len(d),
-        mean_mm=float(d.mean()),
-        rms_mm=float(np.sqrt(np.mean(d**2))),
-        std_mm=float(d.std()),
-        max_mm=float(d.max()),
-        mean_arcmin=float(ang.mean()),
-        max_arcmin=float(ang.max()),
-    )
+    return ResidualStats.of(d, ang)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -28,6 +28,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from kinematics.error_stats import ErrorStats
 from kinematics.errors import ConfigError, IdentifiabilityError
 from kinematics.model import RobotModel
 from kinematics.transforms import (
@@ -76,17 +77,11 @@ class FrameFitConfig:
             raise ConfigError(f"max_nfev must be >= 1, got {self.max_nfev}")
 
 
-@dataclass(frozen=True, kw_only=True)
-class FitSummary:
+class FitSummary(ErrorStats):
     """Residual statistics of a frame fit (mm, arcmin; arcmin NaN for position-only fits)."""
 
-    n: int
-    mean_mm: float
-    rms_mm: float
-    max_mm: float
-    mean_arcmin: float
-    rms_arcmin: float
-    max_arcmin: float
+    #: The keys of an imported dataset's ``frame_fit`` metadata.
+    KEYS = ("n", "mean_mm", "rms_mm", "max_mm", "mean_arcmin", "rms_arcmin", "max_arcmin")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -105,17 +100,7 @@ class FrameFit:
     success: bool
 
     def summary(self) -> FitSummary:
-        mm = self.residual_mm
-        am = self.residual_arcmin if self.residual_arcmin is not None else np.full(1, np.nan)
-        return FitSummary(
-            n=int(mm.size),
-            mean_mm=float(mm.mean()),
-            rms_mm=float(np.sqrt(np.mean(mm**2))),
-            max_mm=float(mm.max()),
-            mean_arcmin=float(am.mean()),
-            rms_arcmin=float(np.sqrt(np.mean(am**2))),
-            max_arcmin=float(am.max()),
-        )
+        return FitSummary.of(self.residual_mm, self.residual_arcmin)
 
 
 def tracker_to_base(T_W_S: np.ndarray, T_W_0: np.ndarray) -> np.ndarray:

@@ -7,10 +7,11 @@ Student-t interval; NLL is the mean predictive NLL of position components with l
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
+from kinematics.error_stats import ErrorStats
 from kinematics.transforms import ARCMIN_PER_RAD
 from learner.model import ErrorModel
 
@@ -18,15 +19,9 @@ LEVELS = (0.68, 0.90, 0.95)
 
 
 @dataclass(frozen=True, kw_only=True)
-class AccuracyReport:
+class AccuracyReport(ErrorStats):
     """Residual statistics after compensation and the interval calibration."""
 
-    n: int
-    mean_mm: float
-    std_mm: float
-    max_mm: float
-    p95_mm: float
-    mean_arcmin: float
     uncalibrated_mean_mm: float
     improvement_pct: float
     coverage_68: float
@@ -35,8 +30,22 @@ class AccuracyReport:
     interval_width_90_mm: float
     nll: float
 
-    def to_dict(self) -> dict[str, float]:
-        return asdict(self)
+    #: The keys of ``robocal train/continual/evaluate --json`` and of a snapshot's metrics.
+    KEYS = (
+        "n",
+        "mean_mm",
+        "std_mm",
+        "max_mm",
+        "p95_mm",
+        "mean_arcmin",
+        "uncalibrated_mean_mm",
+        "improvement_pct",
+        "coverage_68",
+        "coverage_90",
+        "coverage_95",
+        "interval_width_90_mm",
+        "nll",
+    )
 
 
 def accuracy_report(
@@ -61,13 +70,9 @@ def accuracy_report(
         coverage[level] = float(inside.mean())
     lo, hi = ev.interval(0.90)
     nll_mm = ev.nll(Y)[:, :3] + np.log(1e3)  # density per mm instead of per m
-    return AccuracyReport(
-        n=len(Y),
-        mean_mm=float(pos.mean()),
-        std_mm=float(pos.std()),
-        max_mm=float(pos.max()),
-        p95_mm=float(np.percentile(pos, 95)),
-        mean_arcmin=float(rot.mean()),
+    return AccuracyReport.of(
+        pos,
+        rot,
         uncalibrated_mean_mm=base,
         improvement_pct=float(100.0 * (1.0 - pos.mean() / base)) if base > 0 else float("nan"),
         coverage_68=coverage[0.68],

@@ -19,6 +19,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.stats import chi2, ttest_1samp
 
+from kinematics.error_stats import ErrorStats
 from kinematics.identification.conditions import Observations
 
 #: mean |e| / sigma for an isotropic 3-D Gaussian (Maxwell distribution).
@@ -53,21 +54,27 @@ def estimate_noise_floor(q: np.ndarray, residual_m: np.ndarray) -> NoiseFloor:
 
 
 @dataclass(frozen=True, kw_only=True)
-class RegionStat:
+class RegionStat(ErrorStats):
     """Residual statistics of one region against the noise floor."""
 
     family: str
     region: str
-    n: int
-    mean_mm: float
-    rms_mm: float
-    max_mm: float
     ratio_to_floor: float
     p_value: float
     significant: bool
 
-    def to_dict(self) -> dict:
-        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+    #: The keys of a region in ``robocal gap --json``.
+    KEYS = (
+        "family",
+        "region",
+        "n",
+        "mean_mm",
+        "rms_mm",
+        "max_mm",
+        "ratio_to_floor",
+        "p_value",
+        "significant",
+    )
 
 
 def region_labels(obs: Observations, tool_xyz_m: np.ndarray, deflection: np.ndarray | None):
@@ -134,13 +141,10 @@ def region_stats(
             else 1.0
         )
         out.append(
-            RegionStat(
+            RegionStat.of(
+                e * 1e3,
                 family=family,
                 region=region,
-                n=int(e.size),
-                mean_mm=float(e.mean() * 1e3),
-                rms_mm=float(np.sqrt(np.mean(e**2)) * 1e3),
-                max_mm=float(e.max() * 1e3),
                 ratio_to_floor=float(e.mean() / floor.mean_m),
                 p_value=p,
                 significant=p < level / n_tests,

@@ -248,7 +248,7 @@ def import_series(
     progress("read")
     fit = fit_frames(T_W_S, flange, T_W_0_init=W0_init, T_6_S_init=S6_init)
     progress("frames")
-    extra["frame_fit"] = dict(vars(fit.summary()))
+    extra["frame_fit"] = fit.summary().to_dict()
     extra["trafo_inverse_vs_T_6_S"] = _frame_gap(S6_init, fit.T_6_S)
     if W0_init is not None:
         extra["handeye_T_W_0_vs_T_W_0"] = _frame_gap(W0_init, fit.T_W_0)
