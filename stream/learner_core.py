@@ -6,19 +6,17 @@ learned. Of the points that pass, every ``holdout_every``-th (by arrival) joins 
 test set (the newest ``max_test_points``) that is never trained on; the rest go to
 :meth:`learner.continual.ContinualLearner.update`. After each update the core reports test
 error and uncertainty (:mod:`learner.holdout`), the prequential batch error and the memory
-composition by batch age. A checkpoint (learner
-state + test set + counters, safetensors with JSON metadata) lets a restart continue without
-losing accepted data; batches already learned (by ``seq``) are refused as duplicates.
+composition by batch age. Its checkpoint (learner state + test set + counters, safetensors
+with JSON metadata) is built and read as bytes here; the learner stage writes and reads the file
+(:mod:`stream.stages.learner_stage`), so a restart continues without losing accepted data.
+Batches already learned (by ``seq``) are refused as duplicates.
 """
 
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 import time
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 import numpy as np
 from safetensors import SafetensorError
@@ -32,11 +30,11 @@ from learner.base import check_same_robot, reidentify_frames
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from learner.continual import ContinualLearner, UpdateMetrics, load_learner
 from learner.continual_state import state_from_bytes, state_to_bytes
-from learner.features import FeatureSpec, dataset_features, dataset_labels, feature_spec
+from learner.features import FeatureSpec, feature_spec
 from learner.holdout import HeldOut, MemoryAge, heldout_metrics, holdout_mask
 from learner.model import ErrorModel
 from learner.snapshot import read_metadata, snapshot_from_bytes, snapshot_to_bytes
-from stream.points import points_to_dataset, temperature_column
+from stream.points import point_arrays
 from wire import Batch, Metrics, ModelHeader, RejectedMessageError
 
 CHECKPOINT_SCHEMA = "robocal.learner_stage"
@@ -109,18 +107,16 @@ class LearnerCore:
 
     def spec_for(self, batch: Batch) -> FeatureSpec:
         p = batch.points[0]
-        names = tuple(temperature_column(n) for n in p.temperature_names)
-        if not self.cfg.use_temperatures:
-            names = ()
+        names = p.temperature_names if self.cfg.use_temperatures else ()
         has_sec = self.cfg.use_secondary and p.qs is not None
         return feature_spec(self.desc, len(names), has_sec, names)
 
     def features(self, batch: Batch) -> tuple[np.ndarray, np.ndarray]:
         """Raw features and labels of a batch's points (SI)."""
         try:
-            ds = points_to_dataset(batch.points, self.desc.name, self.T_W_0)
+            arrays = point_arrays(batch.points, self.T_W_0)
             spec = self.spec_for(batch) if self.learner is None else self.learner.model.spec
-            return dataset_features(ds, spec), dataset_labels(ds, self.robot)
+            return arrays.features(spec), arrays.labels(self.robot)
         except RobocalError as exc:
             raise RejectedMessageError("features", f"batch {batch.seq}: {exc}") from None
 
@@ -188,12 +184,10 @@ class LearnerCore:
             t=time.time() if now is None else now,
         )
 
-    def checkpoint(self, path: str | Path) -> Path | None:
-        """Write the learner state, test set and counters atomically (None before a model)."""
+    def checkpoint(self) -> bytes | None:
+        """The learner state, test set and counters as safetensors bytes (None before a model)."""
         if self.learner is None:
             return None
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
         meta = {
             "schema": CHECKPOINT_SCHEMA,
             "last_seq": self.last_seq,
@@ -202,15 +196,10 @@ class LearnerCore:
             "state": state_to_bytes(self.learner.state_dict()).hex(),
         }
         rows, ages = self.age.arrays()
-        data = np_save(
+        return np_save(
             {"test_x": self.test.x, "test_y": self.test.y, "age_rows": rows, "ages": ages},
             metadata={"robocal": json.dumps(meta)},
         )
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-        return path
 
     def _start_from(self, path: str) -> None:
         """Go on from a model file of this robot (ConfigError naming a mismatch)."""
@@ -220,18 +209,16 @@ class LearnerCore:
         self.robot = RobotModel(learner.model.spec.description)  # labels against its nominal
         self.test = HeldOut(learner.model.spec.n_features, self.cfg.max_test_points)
 
-    def restore(self, path: str | Path) -> None:
-        """Continue from a :meth:`checkpoint` file."""
-        path = Path(path)
+    def restore(self, data: bytes) -> None:
+        """Continue from :meth:`checkpoint` bytes (SnapshotError when they are not one)."""
         try:
-            data = path.read_bytes()
             arrays = np_load(data)
             meta = read_metadata(data)
             if meta.get("schema") != CHECKPOINT_SCHEMA:
-                raise SnapshotError(f"{path}: schema {meta.get('schema')!r} is not a checkpoint")
+                raise SnapshotError(f"schema {meta.get('schema')!r} is not a checkpoint")
             state = state_from_bytes(bytes.fromhex(meta["state"]))
-        except (OSError, SafetensorError, ValueError, KeyError) as exc:
-            raise SnapshotError(f"{path}: unreadable checkpoint: {exc}") from None
+        except (SafetensorError, ValueError, KeyError, TypeError) as exc:
+            raise SnapshotError(f"unreadable checkpoint: {exc}") from None
         model = snapshot_from_bytes(state["model"])
         self.learner = ContinualLearner(model, self.cfg.continual)
         self.learner.load_state(state)

@@ -26,16 +26,6 @@ class StateDirError(RobocalError):
     """A state directory or file that cannot be written (full disk, read-only, permissions)."""
 
 
-def remove_temporaries(path: str | Path) -> int:
-    """Remove the temporary files that atomic writes of ``path`` left (``.<name>.*``); count."""
-    path = Path(path)
-    n = 0
-    for tmp in path.parent.glob(f".{path.name}.*"):
-        tmp.unlink(missing_ok=True)
-        n += 1
-    return n
-
-
 def check_writable(directory: str | Path, what: str) -> Path:
     """Create ``directory`` if needed and prove it writable; StateDirError in one line."""
     d = Path(directory)

@@ -18,9 +18,10 @@ clock, is refused as ``future``. Forged numbers cannot wedge the stage: a duplic
 highest seen; the kept numbering moves by the next ``seq`` or by a jump that the batch after it
 confirms, so a forged jump reaches neither the checkpoint nor the lost count; the run forgotten
 first is the least advanced one, so a flood of forged epochs does not push the genuine run out
-(and an epoch the stage does not know is joined where it stands). A checkpoint that cannot be
+(and an epoch the stage does not know is joined where it stands). The checkpoint file is
+written with robocal's one atomic writer (:func:`stream.state.write_atomic`): one that cannot be
 written (full disk, read-only directory) leaves no temporary file and the previous checkpoint
-intact, and ends the stage.
+intact, and ends the stage (or waits, ``on_disk_full = "wait"``).
 """
 
 from __future__ import annotations
@@ -35,13 +36,14 @@ import numpy as np
 import zenoh
 
 from kinematics.description import RobotDescription
+from kinematics.errors import SnapshotError
 from learner.continual import UpdateMetrics
 from learner.snapshot import snapshot_to_bytes
 from stream.bus import Received
 from stream.learner_core import LearnerCore, LearnerStageConfig, Update
 from stream.log import JsonLogger
 from stream.stages._base import Stage
-from stream.state import AcceptedLog, remove_temporaries
+from stream.state import AcceptedLog, write_atomic
 from wire import (
     Batch,
     Metrics,
@@ -56,6 +58,23 @@ from wire import (
 KEPT_EPOCHS = 16
 #: Learned ``seq`` s remembered per window run; past it the oldest half is forgotten.
 KEPT_SEQS = 100_000
+
+
+def write_checkpoint(core: LearnerCore, path: str | Path) -> Path | None:
+    """Write the core's checkpoint to ``path`` atomically (None, nothing written, before a
+    model); an OSError names ``path`` and leaves no temporary file."""
+    data = core.checkpoint()
+    return None if data is None else write_atomic(path, data)
+
+
+def read_checkpoint(core: LearnerCore, path: str | Path) -> None:
+    """Continue ``core`` from a checkpoint file; SnapshotError naming the file otherwise."""
+    try:
+        core.restore(Path(path).read_bytes())
+    except OSError as exc:
+        raise SnapshotError(f"{path}: unreadable checkpoint: {exc}") from None
+    except SnapshotError as exc:
+        raise SnapshotError(f"{path}: {exc}") from None
 
 
 class LearnerStage(Stage):
@@ -98,7 +117,7 @@ class LearnerStage(Stage):
         self.metrics: deque[Metrics] = deque(maxlen=10_000)
         self._lock = threading.Lock()
         if self.checkpoint_path is not None and self.checkpoint_path.exists():
-            self.core.restore(self.checkpoint_path)
+            read_checkpoint(self.core, self.checkpoint_path)
             self.log.info(
                 "checkpoint_restored",
                 robot=robot,
@@ -253,18 +272,14 @@ class LearnerStage(Stage):
         return max(b.first - next_first, 0) if b.seq == last_seq + 1 else 0
 
     def _checkpoint(self) -> None:
-        """Write the checkpoint, then clear the accepted log it now holds; on OSError remove
-        the temporary file and re-raise (fatal) or wait (``on_disk_full``)."""
+        """Write the checkpoint, then clear the accepted log it now holds; on OSError re-raise
+        (fatal) or wait (``on_disk_full``)."""
         if self.checkpoint_path is None:
             return
         self.persist(self._write_checkpoint, "checkpoint")
 
     def _write_checkpoint(self) -> None:
-        try:
-            written = self.core.checkpoint(self.checkpoint_path)
-        except OSError:
-            remove_temporaries(self.checkpoint_path)
-            raise
+        written = write_checkpoint(self.core, self.checkpoint_path)
         if written is not None and self.accepted_log is not None:
             self.accepted_log.clear()
 

@@ -22,6 +22,7 @@ from stream.bus import BusConfig, free_port, open_session
 from stream.learner_core import LearnerCore, LearnerStageConfig
 from stream.mcap_io import read_mcap
 from stream.sources import SimCellSource
+from stream.stages.learner_stage import read_checkpoint
 from stream.state import AcceptedLog
 from tests.stream.conftest import daemon_config, kill_running, start_daemon, wait_alive
 from wire import Batch, Diagnostics, decode, key
@@ -98,7 +99,7 @@ def test_kill_9_mid_stream_then_restart_continues_without_duplicates(tmp_path):
         core = LearnerCore.__new__(LearnerCore)  # read the checkpoint as the restart will
         core.cfg = LearnerStageConfig()
         core.desc = None
-        LearnerCore.restore(core, state / f"{robot}.checkpoint.safetensors")
+        read_checkpoint(core, state / f"{robot}.checkpoint.safetensors")
         ((epoch, (last_seq, next_point)),) = core.windows.items()
         assert epoch == window_state["epoch"] and last_seq < window_state["next_seq"]
         # accepted and kept: the checkpoint, the learner's accepted log after it, the window's
@@ -190,7 +191,7 @@ def test_a_state_dir_that_goes_away_stops_the_daemon_with_one_line_and_exit_2(tm
     assert [p.name for p in old_dir.iterdir() if p.name.startswith(".")] == []
     core = LearnerCore.__new__(LearnerCore)
     core.cfg, core.desc = LearnerStageConfig(), None
-    LearnerCore.restore(core, old_dir / ckpt.name)  # the last good checkpoint reads back
+    read_checkpoint(core, old_dir / ckpt.name)  # the last good checkpoint reads back
     with (tmp_path / "plant.mcap").open("rb") as f:
         assert make_reader(f).get_summary() is not None  # MCAP finished with its footer
 

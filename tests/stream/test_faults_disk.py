@@ -21,6 +21,7 @@ from sim_sources.streaming import StreamingConfig
 from stream.bus import BusConfig, alive_stages, free_port, open_session
 from stream.learner_core import LearnerCore, LearnerStageConfig
 from stream.sources import SimCellSource
+from stream.stages.learner_stage import read_checkpoint
 from tests.stream.conftest import daemon_config, fill, kill_running, start_daemon, wait_for
 from wire import key
 
@@ -91,7 +92,7 @@ def restorable(ckpt: Path) -> int:
     """The point count of a checkpoint (it reads back)."""
     core = LearnerCore.__new__(LearnerCore)
     core.cfg, core.desc = LearnerStageConfig(), None
-    LearnerCore.restore(core, ckpt)
+    read_checkpoint(core, ckpt)
     return core.n_points
 
 

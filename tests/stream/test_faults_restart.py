@@ -15,6 +15,7 @@ from sim_sources.streaming import StreamingConfig
 from stream.bus import BusConfig, alive_stages, free_port, open_session
 from stream.learner_core import LearnerCore, LearnerStageConfig
 from stream.sources import SimCellSource
+from stream.stages.learner_stage import read_checkpoint
 from stream.state import AcceptedLog
 from tests.stream.conftest import daemon_config, kill_running, start_daemon, wait_for
 from wire import Batch, decode, key
@@ -85,7 +86,7 @@ def test_kill_9_during_the_first_training_loses_no_accepted_point(tmp_path):
     lost = sum(e["lost"] for e in events if e["event"] == "points_lost")
     core = LearnerCore.__new__(LearnerCore)
     core.cfg, core.desc = LearnerStageConfig(), None
-    LearnerCore.restore(core, state / f"{robot}.checkpoint.safetensors")
+    read_checkpoint(core, state / f"{robot}.checkpoint.safetensors")
     assert replayed == [accepted] and accepted >= 30
     # every point the window joined before the kill is learned after the restart (the pending
     # ones in the batch sent at the stop) or reported lost (its batch was on the way)

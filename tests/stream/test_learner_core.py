@@ -17,7 +17,7 @@ from stream.bus import BusConfig, free_port, open_session
 from stream.learner_core import LearnerCore, LearnerStageConfig
 from stream.log import JsonLogger
 from stream.points import dataset_to_points
-from stream.stages.learner_stage import LearnerStage
+from stream.stages.learner_stage import LearnerStage, read_checkpoint, write_checkpoint
 from wire import Batch, Diagnostics, Metrics, RejectedMessageError, decode, encode, key
 
 CFG = LearnerStageConfig(
@@ -63,9 +63,9 @@ def test_checkpoint_restart_continues_exactly(batches, tmp_path):
     first = core(ds)
     for b in bs[:3]:
         first.add_batch(b)
-    first.checkpoint(tmp_path / "ck.safetensors")
+    write_checkpoint(first, tmp_path / "ck.safetensors")
     resumed = core(ds)
-    resumed.restore(tmp_path / "ck.safetensors")
+    read_checkpoint(resumed, tmp_path / "ck.safetensors")
     for b in bs[3:]:
         resumed.add_batch(b)
     x = straight.test_x
@@ -73,6 +73,33 @@ def test_checkpoint_restart_continues_exactly(batches, tmp_path):
         resumed.learner.model.predict(x).gamma, straight.learner.model.predict(x).gamma
     )
     assert resumed.metrics(0.0, 0.0, 0.0) == straight.metrics(0.0, 0.0, 0.0)
+
+
+def test_checkpoint_files_are_written_by_the_one_writer_and_read_back_named(batches, tmp_path):
+    """Nothing before a model; the file gets the umask's mode (the shared atomic writer, not
+    mkstemp's 0600) and no temporary file; a file that is not a checkpoint is named."""
+    from kinematics.dataset import current_umask
+    from kinematics.errors import SnapshotError
+    from learner.snapshot import save_snapshot
+
+    ds, bs = batches
+    c = core(ds)
+    assert write_checkpoint(c, tmp_path / "none.safetensors") is None
+    assert not (tmp_path / "none.safetensors").exists()
+    for b in bs[:2]:
+        c.add_batch(b)
+    path = write_checkpoint(c, tmp_path / "sub" / "ck.safetensors")
+    assert path.stat().st_mode & 0o777 == 0o666 & ~current_umask()
+    assert [p.name for p in path.parent.iterdir()] == ["ck.safetensors"]
+    garbage = tmp_path / "garbage.safetensors"
+    garbage.write_bytes(b"not a checkpoint")
+    with pytest.raises(SnapshotError, match=r"garbage\.safetensors: unreadable checkpoint"):
+        read_checkpoint(core(ds), garbage)
+    model = save_snapshot(c.learner.model, tmp_path / "model.safetensors")
+    with pytest.raises(SnapshotError, match=r"model\.safetensors: schema .* is not a checkpoint"):
+        read_checkpoint(core(ds), model)
+    with pytest.raises(SnapshotError, match=r"missing\.safetensors: unreadable checkpoint"):
+        read_checkpoint(core(ds), tmp_path / "missing.safetensors")
 
 
 def test_a_bad_batch_is_refused_without_touching_the_state(batches):
