@@ -10,6 +10,14 @@ burst size with the quarantine on; for the first seed also the clean and poisone
 the quarantine and gate off (what the defence changes; ``--no-off`` skips them). TP = burst
 points quarantined, FP = other points quarantined, withheld = updates the gate kept back.
 
+The clean and the poisoned run of a seed share their random numbers batch by batch (common
+random numbers): before each batch the learner's generator, which draws the batch's held-out
+share, is re-seeded from (seed, batch index). With one generator for the whole stream, the 30
+quarantined points shortened one batch's draw and every later batch drew another held-out
+set, so the two runs differed in every batch after the burst, not only in it, and their
+ratio spread like that of two seeds (BENCHMARKS.md). Training is single-threaded and its
+shuffling seeded per fit, so a run is reproducible to the last digit.
+
     .venv/bin/robocal sim dataset --scenario paper --n 3004 --seed 0 --out /tmp/paper.parquet
     .venv/bin/robocal import ipa /work/shared/data/ur10-ipa/Series_A --out /tmp/a.parquet
     .venv/bin/python bench/poisoning.py --data /tmp/paper.parquet --seeds 0 1 2 --burst-mm 20 50
@@ -50,28 +58,38 @@ def bumped(ds: Dataset, rows: np.ndarray, mm: float, rng: np.random.Generator) -
     return Dataset(table, ds.meta)
 
 
-def run(ds: Dataset, cfg: ContinualConfig, seed: int, burst: np.ndarray) -> dict:
-    """Stream the training rows of ``ds`` in time order; the published model's test error (mm)
-    and, per point, whether the quarantine kept it out."""
+def run(
+    ds: Dataset, cfg: ContinualConfig, seed: int, burst: np.ndarray, drop: bool = False
+) -> dict:
+    """Stream the training rows of ``ds`` in time order (without the ``burst`` rows when
+    ``drop``); the published model's test error (mm) at the end and after each step, and the
+    counts of points the quarantine kept out."""
     p = prepare(ds, test_fraction=0.1, seed=0)
     stream = np.sort(p.train)
+    given = ~np.isin(stream, burst) if drop else np.ones(len(stream), dtype=bool)
     X, Y = p.X[stream], p.Y[stream]
     model = ErrorModel.create(p.spec, ModelConfig(), TrainConfig(seed=seed), seed, p.robot)
     learner = ContinualLearner(model, replace(cfg, seed=seed))
     out = np.zeros(len(X), dtype=bool)
     start = time.perf_counter()
     steps = [(0, cfg.init)] + [(i, i + cfg.batch) for i in range(cfg.init, len(X), cfg.batch)]
+    curve = []
     for k, (a, b) in enumerate(steps):
-        ok = learner.screen(X[a:b], Y[a:b])
-        out[a:b] = ~ok
+        learner.rng = np.random.default_rng([seed, k])  # common random numbers (module doc)
+        Xk, Yk = X[a:b][given[a:b]], Y[a:b][given[a:b]]
+        ok = learner.screen(Xk, Yk)
+        out[np.flatnonzero(given[a:b]) + a] = ~ok
         if k == 0:
-            learner.initialize(X[a:b][ok], Y[a:b][ok], screened=True)
+            learner.initialize(Xk[ok], Yk[ok], screened=True)
         else:
-            learner.update(X[a:b][ok], Y[a:b][ok], screened=True)
-    res = learner.model.predict(p.X[p.test]).gamma - p.Y[p.test]
+            learner.update(Xk[ok], Yk[ok], screened=True)
+        curve.append(test_mm(learner.model, p.X[p.test], p.Y[p.test]))
     is_burst = np.isin(stream, burst)
+    first = int(np.argmax(is_burst)) if is_burst.any() else len(X)
     return {
-        "test_mean_mm": float(np.linalg.norm(res[:, :3], axis=1).mean() * 1e3),
+        "test_mean_mm": curve[-1],
+        "burst_step": next((k for k, (a, b) in enumerate(steps) if first < b), len(steps)),
+        "curve": [round(c, 6) for c in curve],
         "tp": int((out & is_burst).sum()),
         "fp": int((out & ~is_burst).sum()),
         "withheld": learner.n_withheld,
@@ -80,6 +98,11 @@ def run(ds: Dataset, cfg: ContinualConfig, seed: int, burst: np.ndarray) -> dict
         "n_stream": len(X),
         "wall_s": round(time.perf_counter() - start, 1),
     }
+
+
+def test_mm(model: ErrorModel, X: np.ndarray, Y: np.ndarray) -> float:
+    """Mean position error (mm) of ``model`` on the test points."""
+    return float(np.linalg.norm((model.predict(X).gamma - Y)[:, :3], axis=1).mean() * 1e3)
 
 
 def burst_rows(ds: Dataset, length: int, rng: np.random.Generator) -> np.ndarray:
@@ -105,6 +128,11 @@ def main() -> None:
     ap.add_argument("--no-off", action="store_true", help="skip the runs without the defence")
     ap.add_argument(
         "--gate-only", action="store_true", help="only poisoned runs with the gate, no quarantine"
+    )
+    ap.add_argument(
+        "--ideal",
+        action="store_true",
+        help="also the clean stream without the burst rows (what a perfect quarantine leaves)",
     )
     args = ap.parse_args()
     torch.set_num_threads(1)
@@ -139,12 +167,17 @@ def main() -> None:
             burst = burst_rows(ds, args.burst_len, rng)
             poisoned = bumped(ds, burst, mm, rng)
             record(seed, mm, "on", run(poisoned, on, seed, burst))
+            if args.ideal:
+                record(seed, mm, "ideal", run(ds, on, seed, burst, drop=True))
             if with_off:
                 record(seed, mm, "off", run(poisoned, off, seed, burst))
-    clean = {(r["seed"], r["defence"]): r["test_mean_mm"] for r in rows if r["burst_mm"] == 0}
+    clean = {(r["seed"], r["defence"]): r for r in rows if r["burst_mm"] == 0}
     for r in rows:
         ref = clean.get((r["seed"], r["defence"]), clean.get((r["seed"], "on")))
-        r["vs_clean"] = None if ref is None else r["test_mean_mm"] / ref - 1.0
+        r["vs_clean"] = None if ref is None else r["test_mean_mm"] / ref["test_mean_mm"] - 1.0
+        k = r["burst_step"]  # the published models from the burst's batch on, averaged
+        after = None if ref is None else np.mean(r["curve"][k:]) / np.mean(ref["curve"][k:]) - 1
+        r["vs_clean_after"] = None if after is None or r["burst_mm"] == 0 else float(after)
     print(json.dumps({"data": args.data, "args": vars(args), "runs": rows}, indent=1))
 
 
