@@ -1,9 +1,12 @@
 """How much the replay memory costs: continual max-error replay (n_B=100) at several memory
-sizes N_m against reservoir replay, full retraining and a batch model trained on N_m random
-points, on the simulated paper campaign (90/10 split). Seeds vary the weights, the hold-out
-draw and the random subset.
+sizes N_m against reservoir replay, full retraining, a batch model trained on N_m random
+points and one trained on every training point (``batch``, the base identified on them), on
+the simulated paper campaign (90/10 split). Seeds vary the weights, the hold-out draw and the
+random subset; every row runs the same seeds. Continual models identify their base from their
+first points and again from their memory (:mod:`learner.continual_base`).
 
     .venv/bin/python bench/learner_memory.py [--data /tmp/paper.parquet] [--seeds 3]
+        [--memories 200,500,1000,2000] [--baselines reservoir,full,random,batch]
 """
 
 import argparse
@@ -14,6 +17,7 @@ import numpy as np
 import torch
 
 from kinematics.dataset import read_dataset
+from learner.base import make_base
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from learner.continual import ContinualLearner
 from learner.metrics import accuracy_report
@@ -44,25 +48,49 @@ def batch_subset(p, n: int, seed: int) -> dict:
     return {"mean_mm": rep.mean_mm, "coverage_90": rep.coverage_90}
 
 
+def batch_all(p, seed: int) -> dict:
+    train = np.sort(p.train)
+    base = make_base("geometric", p.spec, p.X[train], p.Y[train])
+    model = ErrorModel.create(p.spec, ModelConfig(), TrainConfig(seed=seed), seed, p.robot, base)
+    start = time.perf_counter()
+    model.fit(p.X[p.train], p.Y[p.train])
+    rep = accuracy_report(model, p.X[p.test], p.Y[p.test])
+    return {
+        "mean_mm": rep.mean_mm,
+        "coverage_90": rep.coverage_90,
+        "wall_s": time.perf_counter() - start,
+    }
+
+
+def one_run(p, train, strategy: str, memory: int, seed: int) -> dict:
+    if strategy == "batch on random":
+        return batch_subset(p, memory, seed)
+    if strategy == "batch":
+        return batch_all(p, seed)
+    return continual(p, train, strategy, memory, seed)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--data", default="/tmp/paper.parquet")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--memories", default="200,500,1000,2000")
+    ap.add_argument("--baselines", default="reservoir,full,random,batch")
     args = ap.parse_args()
     torch.set_num_threads(1)
     p = prepare(read_dataset(args.data), test_fraction=0.1, seed=0)
     train = np.sort(p.train)  # recording order
     runs = [("max_error", int(m)) for m in args.memories.split(",")]
-    runs += [("reservoir", 500), ("full", len(train)), ("batch on random", 500)]
+    baselines = {
+        "reservoir": ("reservoir", 500),
+        "full": ("full", len(train)),
+        "random": ("batch on random", 500),
+        "batch": ("batch", len(train)),
+    }
+    runs += [baselines[b] for b in args.baselines.split(",") if b]
     rows = []
     for strategy, memory in runs:
-        results = [
-            batch_subset(p, memory, seed)
-            if strategy == "batch on random"
-            else continual(p, train, strategy, memory, seed)
-            for seed in range(args.seeds)
-        ]
+        results = [one_run(p, train, strategy, memory, seed) for seed in range(args.seeds)]
         means = [r["mean_mm"] for r in results]
         row = {
             "strategy": strategy,

@@ -38,8 +38,9 @@ import torch
 
 from kinematics.errors import DatasetError, SnapshotError
 from kinematics.model import RobotModel
-from learner.base import PhysicsBase, identify_base, late_auto_base, nominal_base
+from learner.base import PhysicsBase, identify_base, nominal_base
 from learner.config import ContinualConfig
+from learner.continual_base import due, memory_base, status
 from learner.continual_state import (  # noqa: F401
     STATE_SCHEMA,
     state_from_bytes,
@@ -51,9 +52,6 @@ from learner.quarantine import QuarantineState, holdout_mm, model_residuals, scr
 from learner.quarantine import state_from_dict as quarantine_from_dict
 from learner.replay import replay_strategy
 from learner.snapshot import load_snapshot, snapshot_from_bytes, snapshot_to_bytes
-
-#: Versions between tries to identify an ``auto`` base the first points left on the nominal.
-LATE_BASE_EVERY = 10
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -212,21 +210,23 @@ class ContinualLearner:
             lr=self.cfg.update_lr,
         )
         withheld, holdout_mm = self._publish_gated()
-        self._identify_late()
+        self._reidentify()
         new_kept = int(np.sum(keep >= len(pool_x) - len(X_new)))
         batch_err = np.linalg.norm((pred - pool_y)[-len(X_new) :, :3], axis=1)
         dt = time.perf_counter() - start
         m = self._metrics(len(X_new), new_kept, report, dt, batch_err)
         return replace(m, withheld=withheld, holdout_mm=holdout_mm, **out)
 
-    def _identify_late(self) -> None:
-        """Retrain on the ``auto`` base the memory identifies; publish the model if better."""
-        if self.version % LATE_BASE_EVERY or len(self._cal_x) < MIN_CALIBRATION:
+    def _reidentify(self) -> None:
+        """Retrain on the base the memory identifies when due (:mod:`learner.continual_base`);
+        publish it if the held-out error falls."""
+        cal = (self._cal_x, self._cal_y)
+        if len(cal[0]) < MIN_CALIBRATION or not due(self.version, status(self.base)):
             return
-        base = late_auto_base(self.base, self.trained.spec, self._mem_x, self._mem_y)
+        base = memory_base(self.base, self.trained.spec, self._mem_x, self._mem_y)
         if base is None:
             return
-        new, cal = _copy(self.trained), (self._cal_x, self._cal_y)
+        new = _copy(self.trained)
         new.base = base
         new.fit(self._mem_x, self._mem_y, *cal, max_epochs=self.cfg.init_epochs, val_fraction=0.0)
         if holdout_mm(new, *cal) < holdout_mm(self.model, *cal):
