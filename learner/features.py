@@ -19,6 +19,7 @@ np.float64(0.0)
 
 from __future__ import annotations
 
+import functools
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -133,34 +134,77 @@ def features(
     """Raw SI features ``(N, F)`` in ``spec.names`` order from controller angles ``q`` ``(N, n)``
     (rad), deflections ``qs - q`` ``(N, n)`` (rad) and temperatures (°C, ``(N,)`` or one value,
     by channel or column name); a :class:`DatasetError` names the first input missing."""
+    plan = _plan(spec.names)
     q = np.asarray(q, dtype=float)
     if q.ndim != 2:
         raise DatasetError(f"joint angles must have shape (N, n), got {q.shape}")
-    defl = None if deflection is None else np.asarray(deflection, dtype=float)
-    temps = {temperature_column(k): v for k, v in (temperatures or {}).items()}
-    cols = []
-    for name in spec.names:
-        match = _FEATURE.fullmatch(name)
-        if match is None:
-            raise DatasetError(f"unknown feature {name!r}: expected q<i>, dtheta<i> or temp_<name>")
-        kind, i = match[1], int(match[2] or 0) - 1
-        if kind is None:
-            if name not in temps:
-                raise DatasetError(f"no temperature {name!r} for feature {name!r}")
-            cols.append(np.broadcast_to(np.asarray(temps[name], dtype=float), (len(q),)))
-        elif kind == "dtheta":
-            if defl is None or i >= defl.shape[1]:
-                raise DatasetError(f"no deflection (secondary encoder qs{i + 1}) for {name!r}")
-            cols.append(defl[:, i])
-        else:
-            if i >= q.shape[1]:
-                raise DatasetError(f"no joint angle q{i + 1} for feature {name!r}")
-            cols.append(q[:, i])
-    return np.stack(cols, axis=1)
+    if plan.n_joints > q.shape[1]:
+        raise DatasetError(f"no joint angle q{q.shape[1] + 1} for feature 'q{q.shape[1] + 1}'")
+    parts = [q[:, plan.q]]
+    if plan.dtheta.size:
+        n = 0 if deflection is None else np.shape(deflection)[1]
+        if plan.n_deflections > n:
+            raise DatasetError(f"no deflection (secondary encoder qs{n + 1}) for 'dtheta{n + 1}'")
+        parts.append(np.asarray(deflection, dtype=float)[:, plan.dtheta])
+    if plan.temps:
+        temps = {temperature_column(k): v for k, v in (temperatures or {}).items()}
+        missing = [c for c in plan.temps if c not in temps]
+        if missing:
+            raise DatasetError(f"no temperature {missing[0]!r} for feature {missing[0]!r}")
+        try:  # (k,) one value per thermometer, or (k, N) one per point
+            values = np.array([temps[c] for c in plan.temps], dtype=float)
+        except ValueError:
+            raise DatasetError("temperatures must all be single values or all arrays") from None
+        parts.append(values.T if values.ndim == 2 else np.repeat(values[None], len(q), axis=0))
+    X = np.concatenate(parts, axis=1)
+    return X if plan.order is None else X[:, plan.order]
 
 
 #: A feature name: ``q<i>`` or ``dtheta<i>`` (joint ``i``, from 1), or a temperature column.
 _FEATURE = re.compile(rf"(q|dtheta)([1-9][0-9]*)|{re.escape(TEMPERATURE_PREFIX)}.+")
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """Where each feature is read: joints (zero-based) of the ``q`` and ``dtheta`` features,
+    the temperature columns, the permutation from ``[q | dtheta | temps]`` to the spec's
+    order (None when it is that order already), and how many joints the angles and the
+    deflections must have."""
+
+    q: np.ndarray
+    dtheta: np.ndarray
+    temps: tuple[str, ...]
+    order: np.ndarray | None
+    n_joints: int = 0
+    n_deflections: int = 0
+
+
+@functools.lru_cache(maxsize=64)
+def _plan(names: tuple[str, ...]) -> _Plan:
+    """The :class:`_Plan` of feature names, parsed once per spec (compensation builds one row
+    per solver step)."""
+    groups: dict[str, list[tuple[int, int]]] = {"q": [], "dtheta": [], "temp": []}
+    temps = []
+    for col, name in enumerate(names):
+        match = _FEATURE.fullmatch(name)
+        if match is None:
+            raise DatasetError(f"unknown feature {name!r}: expected q<i>, dtheta<i> or temp_<name>")
+        if match[1] is None:
+            groups["temp"].append((col, len(temps)))
+            temps.append(name)
+        else:
+            groups[match[1]].append((col, int(match[2]) - 1))
+    cols = [col for g in groups.values() for col, _ in g]
+    order = None if cols == sorted(cols) else np.argsort(cols)
+    q, dtheta = ([i for _, i in groups[k]] for k in ("q", "dtheta"))
+    return _Plan(
+        q=np.array(q, dtype=int),
+        dtheta=np.array(dtheta, dtype=int),
+        temps=tuple(temps),
+        order=order,
+        n_joints=max(q, default=-1) + 1,
+        n_deflections=max(dtheta, default=-1) + 1,
+    )
 
 
 def labels(model: RobotModel, q: np.ndarray, T_0_S: np.ndarray) -> np.ndarray:

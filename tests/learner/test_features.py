@@ -87,6 +87,10 @@ def test_one_builder_from_arrays(small_ds):
     assert Y.tobytes() == dataset_labels(small_ds, model).tobytes()
     one = features(spec, small_ds.q()[:1], np.zeros((1, 6)), {"link2": 30, "link4": 31.5})
     assert one[0, 6:].tolist() == [0.0] * 6 + [30.0, 31.5]  # one value per channel, deflection 0
+    odd = FeatureSpec(names=("temp_link4", "q2", "dtheta1", "q1"), low=np.zeros(4), high=[1] * 4)
+    X = features(odd, small_ds.q(), small_ds.deflection(), by_channel)  # any order of names
+    want = [temps[:, 1], small_ds.q()[:, 1], small_ds.deflection()[:, 0], small_ds.q()[:, 0]]
+    assert X.tobytes() == np.stack(want, axis=1).tobytes()
 
 
 def test_builder_names_what_is_missing(small_ds):
@@ -101,6 +105,8 @@ def test_builder_names_what_is_missing(small_ds):
     odd = FeatureSpec(names=("q1", "speed"), low=np.zeros(2), high=np.ones(2))
     with pytest.raises(DatasetError, match="unknown feature 'speed'"):
         features(odd, q, None, None)
+    with pytest.raises(DatasetError, match="all be single values or all arrays"):
+        features(spec, q, q * 0, {"link2": 20.0, "link4": q[:, 0]})
 
 
 def test_synthetic_dataset_is_seeded():
