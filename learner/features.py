@@ -175,35 +175,35 @@ class _Plan:
     dtheta: np.ndarray
     temps: tuple[str, ...]
     order: np.ndarray | None
-    n_joints: int = 0
-    n_deflections: int = 0
+    n_joints: int
+    n_deflections: int
 
 
 @functools.lru_cache(maxsize=64)
 def _plan(names: tuple[str, ...]) -> _Plan:
     """The :class:`_Plan` of feature names, parsed once per spec (compensation builds one row
     per solver step)."""
-    groups: dict[str, list[tuple[int, int]]] = {"q": [], "dtheta": [], "temp": []}
+    where: dict[str, list[int]] = {"q": [], "dtheta": [], "temp": []}  # spec columns per kind
+    joints: dict[str, list[int]] = {"q": [], "dtheta": []}
     temps = []
     for col, name in enumerate(names):
         match = _FEATURE.fullmatch(name)
         if match is None:
             raise DatasetError(f"unknown feature {name!r}: expected q<i>, dtheta<i> or temp_<name>")
-        if match[1] is None:
-            groups["temp"].append((col, len(temps)))
+        kind = match[1] or "temp"
+        where[kind].append(col)
+        if kind == "temp":
             temps.append(name)
         else:
-            groups[match[1]].append((col, int(match[2]) - 1))
-    cols = [col for g in groups.values() for col, _ in g]
-    order = None if cols == sorted(cols) else np.argsort(cols)
-    q, dtheta = ([i for _, i in groups[k]] for k in ("q", "dtheta"))
+            joints[kind].append(int(match[2]) - 1)
+    cols = where["q"] + where["dtheta"] + where["temp"]
     return _Plan(
-        q=np.array(q, dtype=int),
-        dtheta=np.array(dtheta, dtype=int),
+        q=np.array(joints["q"], dtype=int),
+        dtheta=np.array(joints["dtheta"], dtype=int),
         temps=tuple(temps),
-        order=order,
-        n_joints=max(q, default=-1) + 1,
-        n_deflections=max(dtheta, default=-1) + 1,
+        order=None if cols == sorted(cols) else np.argsort(cols),
+        n_joints=max(joints["q"], default=-1) + 1,
+        n_deflections=max(joints["dtheta"], default=-1) + 1,
     )
 
 
@@ -217,8 +217,7 @@ def dataset_features(ds: Dataset, spec: FeatureSpec) -> np.ndarray:
     """Raw SI features ``(N, F)`` of ``ds`` in ``spec.names`` order."""
     t = ds.table
     temps = {c: t[c].to_numpy(float) for c in temperature_columns(t) if c in spec.names}
-    needs_deflection = any(n.startswith("dtheta") for n in spec.names)
-    deflection = ds.deflection() if needs_deflection else None
+    deflection = ds.deflection() if _plan(spec.names).dtheta.size else None
     return features(spec, ds.q(), deflection, temps)
 
 
