@@ -14,9 +14,11 @@ The clean and the poisoned run of a seed share their random numbers batch by bat
 random numbers): before each batch the learner's generator, which draws the batch's held-out
 share, is re-seeded from (seed, batch index). With one generator for the whole stream, the 30
 quarantined points shortened one batch's draw and every later batch drew another held-out
-set, so the two runs differed in every batch after the burst, not only in it, and their
-ratio spread like that of two seeds (BENCHMARKS.md). Training is single-threaded and its
-shuffling seeded per fit, so a run is reproducible to the last digit.
+set, so the two runs differed in every batch after the burst, not only in it (the larger part
+of their difference is another: BENCHMARKS.md). Training is single-threaded and its shuffling
+seeded per fit, so a run is reproducible to the last digit. ``--ideal`` streams the clean
+stream without the burst rows: what the learner is given when the quarantine catches exactly
+the burst.
 
     .venv/bin/robocal sim dataset --scenario paper --n 3004 --seed 0 --out /tmp/paper.parquet
     .venv/bin/robocal import ipa /work/shared/data/ur10-ipa/Series_A --out /tmp/a.parquet
