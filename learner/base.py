@@ -57,6 +57,16 @@ IDENTIFY_POINTS = 200
 #: stream often lie in one region, where a calibration fits them and extrapolates by mm (UR10
 #: Series A in time order: condition 3.4e3, 11 mm off on the rest against 0.74 mm nominal).
 AUTO_MAX_CONDITION = 100.0
+#: Prior of a re-identified frame parameter (:func:`reidentify_frames`): a Gaussian whose std
+#: moves the tool pose by this much (m, RMS over the new points; rotations on a 1 m lever),
+#: weighed against what a free fit of the frames leaves (``s_p``), so the source's frames count
+#: as about ``(s_p / FRAME_PRIOR_M)²`` points. A new day's first points, often from one region,
+#: carry the robot's local error (0.3-0.5 mm on a UR10), which a free fit folds into frame
+#: rotations that tilt the far workspace; where the carried network explains the rest,
+#: ``s_p`` is small and the frames move freely (a re-mounted tool). UR10, geometric base alone,
+#: frames from the first 10 / 100 points: A -> B 0.82 / 0.59 mm free, 0.56 / 0.53 mm held;
+#: B -> A 1.17 / 0.73 mm free, 0.78 / 0.59 mm held (BENCHMARKS.md, "Carried into a new day").
+FRAME_PRIOR_M = 3e-5
 #: Effects a base evaluates from model features alone (others need signals a model lacks).
 _FEATURE_EFFECTS = ("geometric", "joint_compliance", "thermal_expansion", "gear_periodic")
 
@@ -193,17 +203,28 @@ def file_base(path: str | Path, spec: FeatureSpec, frame: np.ndarray) -> Physics
 
 
 def reidentify_frames(
-    base: PhysicsBase, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray, offsets: bool = False
+    base: PhysicsBase,
+    spec: FeatureSpec,
+    X: np.ndarray,
+    Y: np.ndarray,
+    offsets: bool = False,
+    *,
+    residual: np.ndarray | None = None,
+    prior_m: float | None = FRAME_PRIOR_M,
 ) -> PhysicsBase:
     """The base with ``T_0_B``, its tool and (``offsets``) the joint offsets re-identified from
     ``X, Y`` (a new day's first points), the rest of its kinematics and its effects held: the
     tracker moved, the tool was re-mounted, an encoder was re-referenced. Only the parameters
-    these points identify are fitted (pivoted QR, as in calibration). A nominal base becomes a
+    these points identify are fitted (pivoted QR, as in calibration), as a MAP estimate under a
+    prior centred on the base's own frames (:data:`FRAME_PRIOR_M`; ``None``: least squares).
+    ``residual`` (N, 6), what the network adds to the base at ``X``, is taken off the labels
+    first, so the frames are fitted to what the base should explain. A nominal base becomes a
     ``frames`` base. Offsets are off by default: from a new day's first 10-100 UR10 points
     they fold local pose error into the encoders (B -> A: 2.76 mm with them, 0.73 mm without,
     BENCHMARKS.md "Real UR10")."""
     desc = base.description
     n = desc.n_joints
+    Y = np.asarray(Y, dtype=float) - (0.0 if residual is None else residual)
     obs = observations_from_dataset(measured_dataset(spec, X, Y), desc)
     obs = replace(obs, T_W_0=base.T_0_B)
     free = tuple(5 * i + 4 for i in range(n)) if offsets else ()
@@ -213,7 +234,12 @@ def reidentify_frames(
     J = jacobian(base.model, obs, [(candidate, np.zeros(len(free))), *held], 1.0, only=0)
     kept = identifiable(J, candidate.parameter_names(desc), CalibrationConfig().rank_rtol)
     frames = GeometricFrames(desc, tuple(free[i] for i in kept.kept_index))
-    fit = fit_effects(base.model, obs, [(frames, np.zeros(len(kept.kept))), *held])
+    prior_std = None
+    if prior_m is not None:  # each parameter: what moves the tool by prior_m (RMS) here
+        moved = J[:, list(kept.kept_index)].reshape(len(X), 6, -1)  # rad count as m (1 m lever)
+        prior_std = prior_m / np.sqrt(np.mean(np.sum(moved**2, axis=1), axis=0))
+    blocks = [(frames, np.zeros(len(kept.kept))), *held]
+    fit = fit_effects(base.model, obs, blocks, prior_std=prior_std)
     calibrated, T_0_B = apply_calibration(desc, obs.T_W_0, frames.full(fit.params[0]))
     kind = "frames" if base.kind == "nominal" else base.kind
     return replace(base, kind=kind, description=calibrated, T_0_B=T_0_B)

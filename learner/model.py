@@ -209,6 +209,13 @@ class ErrorModel:
         beta = beta * (std * self.interval_scale) ** 2
         return Evidential(gamma=residual + self.base_error(X), nu=nu, alpha=alpha, beta=beta)
 
+    def residual(self, X: np.ndarray) -> np.ndarray:
+        """What the network adds to the base at ``X`` ``(N, 6)`` (m, rad), as :meth:`predict`
+        weighs it: a new day's frames are fitted to the labels less this."""
+        if self.label_mean is None:
+            return np.zeros((np.shape(X)[0], N_LABELS))
+        return self.predict(X).gamma - self.base_error(X)
+
     def calibrate(self, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
         """Fit the per-component factor on the Student-t scale that minimises the predictive
         NLL of held-out ``(X, Y)`` (``beta`` is multiplied by its square); returns it.

@@ -174,7 +174,8 @@ def continual_on_dataset(
     Xtr, Ytr = p.X[train], p.Y[train]
     if start is not None:
         first = slice(0, cfg.init)
-        learner.rebase(reidentify_frames(learner.base, p.spec, Xtr[first], Ytr[first]))
+        X0, Y0, model = Xtr[first], Ytr[first], learner.model
+        learner.rebase(reidentify_frames(learner.base, p.spec, X0, Y0, residual=model.residual(X0)))
     Xte, Yte = p.X[p.test], p.Y[p.test]
     updates, curve = [], []
     for m in learner.learn_stream(Xtr, Ytr):

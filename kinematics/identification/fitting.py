@@ -213,24 +213,38 @@ def fit_effects(
     blocks: list[Block],
     rotation_weight_m: float | None = None,
     max_nfev: int = 50,
+    prior_std: np.ndarray | None = None,
 ) -> FitResult:
     """Fit all parameters of ``blocks`` (start values given) by ``least_squares``.
 
-    Uncertainties are ``sqrt(diag(s^2 (J^T J)^+))`` with ``s^2 = RSS / (6N - p)``.
+    Uncertainties are ``sqrt(diag(s^2 (J^T J)^+))`` with ``s^2 = RSS / (6N - p)``. With
+    ``prior_std`` (one per parameter, in its unit) the fit is a MAP estimate under a Gaussian
+    prior centred on the start values: one residual row ``s_p (x - x0) / prior_std`` per
+    parameter, ``s_p`` the RMS position residual per component of a first, free fit (what
+    these parameters cannot explain: the points' noise), so a parameter the points hardly
+    excite stays near its start.
+    (A Cauchy prior, which lets a clearly shown move go, released the tilt that one region's
+    local error fakes: UR10 B -> A frames from 10 points 1.03 mm against 0.77 mm Gaussian.)
     """
     blocks = [(e, np.asarray(p, dtype=float)) for e, p in blocks]
     w = 1.0 if rotation_weight_m is None else float(rotation_weight_m)
-    x = np.concatenate([p for _, p in blocks]) if blocks else np.zeros(0)
-    for _ in range(1 if rotation_weight_m is not None else 2):
-        x = _solve(model, obs, blocks, x, w, max_nfev)
+    x0 = np.concatenate([p for _, p in blocks]) if blocks else np.zeros(0)
+    x, prior = x0, None
+    for _ in range(1 if rotation_weight_m is not None and prior_std is None else 2):
+        x = _solve(model, obs, blocks, x, w, max_nfev, prior)
+        E = residual_matrix(model, obs, _split(x, blocks))
+        s_pos, s_rot = np.sqrt(np.mean(E[:, :3] ** 2)), np.sqrt(np.mean(E[:, 3:] ** 2))
         if rotation_weight_m is None:
-            E = residual_matrix(model, obs, _split(x, blocks))
-            s_pos, s_rot = np.sqrt(np.mean(E[:, :3] ** 2)), np.sqrt(np.mean(E[:, 3:] ** 2))
             w = float(s_pos / s_rot) if s_rot > 0 and s_pos > 0 else 1.0
+        if prior_std is not None and prior is None:  # the noise: what the free fit leaves
+            prior = (x0, np.asarray(prior_std, dtype=float), max(s_pos, 1e-12))
     fitted = _split(x, blocks)
     J = jacobian(model, obs, fitted, w)
     E = residual_matrix(model, obs, fitted)
     r = _weighted(E, w)
+    if prior is not None:
+        r_prior, J_prior = _prior_rows(x, *prior)
+        J, r = np.concatenate([J, J_prior]), np.concatenate([r, r_prior])
     dof = max(r.size - x.size, 1)
     rss = float(r @ r)
     cov = rss / dof * np.linalg.pinv(J.T @ J) if x.size else np.zeros((0, 0))
@@ -247,16 +261,26 @@ def fit_effects(
     )
 
 
-def _solve(model, obs, blocks, x0, w, max_nfev) -> np.ndarray:
+def _prior_rows(
+    x: np.ndarray, centre: np.ndarray, std: np.ndarray, s_p: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rows ``s_p (x - centre) / std`` of a Gaussian prior and their Jacobian (diagonal)."""
+    return s_p * (x - centre) / std, np.diag(s_p / std)
+
+
+def _solve(model, obs, blocks, x0, w, max_nfev, prior=None) -> np.ndarray:
+    """Least squares from ``x0``; ``prior`` ``(centre, std, s_p)`` adds a Gaussian prior's rows."""
     if x0.size == 0:
         return x0
     steps: dict[tuple[int, int], float] = {}
 
     def fun(x):
-        return _weighted(residual_matrix(model, obs, _split(x, blocks)), w)
+        r = _weighted(residual_matrix(model, obs, _split(x, blocks)), w)
+        return r if prior is None else np.concatenate([r, _prior_rows(x, *prior)[0]])
 
     def jac(x):
-        return jacobian(model, obs, _split(x, blocks), w, steps=steps)
+        J = jacobian(model, obs, _split(x, blocks), w, steps=steps)
+        return J if prior is None else np.concatenate([J, _prior_rows(x, *prior)[1]])
 
     sol = least_squares(fun, x0, jac=jac, x_scale="jac", method="trf", max_nfev=max_nfev)
     return sol.x

@@ -131,7 +131,7 @@ def test_frames_are_reidentified_from_a_new_days_first_points(points):
     nominal = RobotModel(p.spec.description)
     Y2 = _moved(p, _frame([2e-3, -1e-3, 0.5e-3], 2e-3), _frame([0, 1e-3, 0], 1e-3))
     stale = _position_mm(Y2[200:] - base.error(p.spec, p.X[200:], nominal))
-    new = reidentify_frames(base, p.spec, p.X[:20], Y2[:20])
+    new = reidentify_frames(base, p.spec, p.X[:20], Y2[:20], prior_m=None)  # the prior: below
     fresh = _position_mm(Y2[200:] - new.error(p.spec, p.X[200:], nominal))
     same_day = _position_mm(p.Y[200:] - base.error(p.spec, p.X[200:], nominal))
     assert stale > 1.0 and fresh < 1.3 * same_day
