@@ -132,7 +132,8 @@ class LearnerCore:
             raise RejectedMessageError("non_finite", f"batch {batch.seq}: non-finite features")
         if self._reidentify:  # a carried model's first batch: this cell's frames
             spec = self.learner.model.spec
-            self.learner.rebase(reidentify_frames(self.learner.base, spec, X, Y))
+            residual = self.learner.model.residual(X)
+            self.learner.rebase(reidentify_frames(self.learner.base, spec, X, Y, residual=residual))
             self._reidentify = False
         if self.learner is None:
             model = ErrorModel.create(
