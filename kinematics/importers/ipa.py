@@ -31,7 +31,13 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
-from kinematics.dataset import Dataset, DatasetMeta, validate, write_dataset
+from kinematics.dataset import (
+    Dataset,
+    DatasetMeta,
+    temperature_column,
+    validate,
+    write_dataset,
+)
 from kinematics.description import load_description
 from kinematics.errors import DatasetError
 from kinematics.frames import FrameFit, fit_frames
@@ -156,7 +162,7 @@ def dataset_table(
     xyz, quat = xyz_quat_from_transform(T_W_S)
     columns = {"t": t}
     columns |= {f"q{i}": raw[name].to_numpy(float) for i, name in enumerate(JOINTS, start=1)}
-    columns["temp_ambient"] = raw["measurement_temperature"].to_numpy(float)
+    columns[temperature_column("ambient")] = raw["measurement_temperature"].to_numpy(float)
     columns |= dict(zip(("x", "y", "z"), xyz.T, strict=True))
     columns |= dict(zip(("qx", "qy", "qz", "qw"), quat.T, strict=True))
     for col, name in zip(GOAL, ("x", "y", "z", "roll", "pitch", "yaw"), strict=True):
