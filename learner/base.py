@@ -39,7 +39,13 @@ from kinematics.calibration import (
     calibrate,
     identifiable,
 )
-from kinematics.dataset import Dataset, DatasetMeta
+from kinematics.dataset import (
+    Dataset,
+    DatasetMeta,
+    temperature_column,
+    temperature_columns,
+    temperature_name,
+)
 from kinematics.description import RobotDescription
 from kinematics.effects import Conditions, Effect, Perturbation, perturbed_poses
 from kinematics.errors import ConfigError, IdentifiabilityError
@@ -130,7 +136,7 @@ def measured_dataset(spec: FeatureSpec, X: np.ndarray, Y: np.ndarray) -> Dataset
     xyz, quat = xyz_quat_from_transform(T)
     columns = {"t": np.arange(len(X), dtype=float)}
     columns |= {f"q{i}": X[:, i - 1] for i in range(1, desc.n_joints + 1)}
-    columns |= {n: X[:, i] for i, n in enumerate(spec.names) if n.startswith("temp_")}
+    columns |= {n: X[:, spec.names.index(n)] for n in temperature_columns(spec.names)}
     columns |= dict(zip(("x", "y", "z"), xyz.T, strict=True))
     columns |= dict(zip(("qx", "qy", "qz", "qw"), quat.T, strict=True))
     meta = DatasetMeta(robot=desc.name, frame="base", T_6_S=desc.tool.tolist())
@@ -190,9 +196,13 @@ def file_base(path: str | Path, spec: FeatureSpec, frame: np.ndarray) -> Physics
             f"do not carry; a base can use {', '.join(_FEATURE_EFFECTS)}"
         )
     for entry in model.effects:
-        needs = [n for n in entry.options.get("sensors", []) if f"temp_{n}" not in spec.names]
+        needs = [
+            n for n in entry.options.get("sensors", []) if temperature_column(n) not in spec.names
+        ]
         if needs:
-            raise ConfigError(f"base file {path}: effect {entry.name!r} needs temp_{needs[0]}")
+            raise ConfigError(
+                f"base file {path}: effect {entry.name!r} needs {temperature_column(needs[0])}"
+            )
     return PhysicsBase(
         kind="file",
         description=model.description,
@@ -281,12 +291,12 @@ def _conditions(spec: FeatureSpec, X: np.ndarray) -> Conditions:
     """Effect conditions from raw features: joints and named temperatures (no time, no loads)."""
     X = np.asarray(X, dtype=float)
     n = spec.description.n_joints
-    temp_idx = [i for i, name in enumerate(spec.names) if name.startswith("temp_")]
+    temp_idx = [spec.names.index(c) for c in temperature_columns(spec.names)]
     return Conditions(
         q=X[:, :n],
         t=np.zeros(len(X)),
         temperatures=X[:, temp_idx] if temp_idx else None,
-        temperature_names=tuple(spec.names[i].removeprefix("temp_") for i in temp_idx),
+        temperature_names=tuple(temperature_name(spec.names[i]) for i in temp_idx),
     )
 
 

@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from kinematics.accuracy import AccuracySummary, accuracy_summary
-from kinematics.dataset import Dataset, DatasetMeta, write_dataset
+from kinematics.dataset import Dataset, DatasetMeta, temperature_column, write_dataset
 from kinematics.description import load_description
 from kinematics.effects import Conditions, Perturbation, ctrl_to_dh_delta
 from kinematics.errors import ConfigError
@@ -198,7 +198,8 @@ def _rows(cell: SimulatedCell, index: np.ndarray) -> pd.DataFrame:
     cols |= {f"q{i + 1}": cond.q[:, i] for i in range(n_joints)}
     cols |= {f"qs{i + 1}": m.qs[:, i] for i in range(n_joints)}
     cols |= {
-        f"temp_{name}": cond.temperatures[:, k] for k, name in enumerate(cond.temperature_names)
+        temperature_column(name): cond.temperatures[:, k]
+        for k, name in enumerate(cond.temperature_names)
     }
     cols |= dict(zip(("x", "y", "z"), xyz.T, strict=True))
     cols |= dict(zip(("qx", "qy", "qz", "qw"), quat.T, strict=True))

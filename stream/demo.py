@@ -23,7 +23,7 @@ import numpy as np
 import torch
 import zenoh
 
-from kinematics.dataset import Dataset
+from kinematics.dataset import Dataset, temperature_columns, temperature_name
 from kinematics.errors import ConfigError
 from kinematics.model import RobotModel
 from kinematics.transforms import pose_error
@@ -105,7 +105,9 @@ def compensation_check(
     target = RobotModel(sim.model.description).fk(cond.q)
     q_corrected, residual, trusted, policies = [], [], 0, []
     for i in rows:
-        temps = {c[5:]: float(ds.table[c].iloc[i]) for c in ds.table if c.startswith("temp_")}
+        temps = {
+            temperature_name(c): float(ds.table[c].iloc[i]) for c in temperature_columns(ds.table)
+        }
         req = CompensationRequest(
             q=tuple(ds.q()[i]), temperatures=temps, deflection=tuple(ds.deflection()[i])
         )

@@ -22,6 +22,7 @@ from kinematics.dataset import (
     read_dataset,
     secondary_columns,
     temperature_columns,
+    temperature_name,
 )
 from kinematics.description import RobotDescription
 from kinematics.errors import ConfigError
@@ -80,7 +81,7 @@ def dataset_samples(ds: Dataset, cfg: StreamingConfig) -> Iterator[Sample]:
     qs = ds.table[qs_cols].to_numpy(float) if qs_cols else None
     t_cols = temperature_columns(ds.table)
     temps = ds.table[t_cols].to_numpy(float) if t_cols else None
-    names = tuple(c[len("temp_") :] for c in t_cols)
+    names = tuple(temperature_name(c) for c in t_cols)
     seq = {JointSample: 0, TrackerSample: 0, TemperatureSample: 0}
 
     def numbered(s: Sample) -> Sample:
