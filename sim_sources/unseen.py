@@ -27,18 +27,11 @@ import pandas as pd
 
 from kinematics.dataset import Dataset, DatasetMeta, temperature_column, write_dataset
 from kinematics.description import JointDH, RobotDescription, description_to_toml
+from kinematics.effects import EFFECTS
 from kinematics.transforms import transform_from_xyz_rpy, xyz_quat_from_transform
 
-VOCABULARY = (
-    "geometric",
-    "joint_compliance",
-    "thermal_expansion",
-    "backlash",
-    "gear_periodic",
-    "tracker_drift",
-    "base_frame",
-    "tool_frame",
-)
+#: The effect names a hidden effect is drawn from: the registry of kinematics.effects.
+VOCABULARY = tuple(EFFECTS)
 #: Effects that need a signal a robot may lack: link masses for gravity torques.
 NEEDS_MASSES = ("joint_compliance",)
 G0_M_S2 = 9.81
