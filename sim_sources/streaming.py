@@ -21,7 +21,6 @@ Deflections ``qs - q`` are interpolated the same way. Samples are yielded in sou
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -29,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kinematics.dataset import Dataset, temperature_columns, temperature_name
-from kinematics.errors import ConfigError
+from kinematics.errors import ConfigError, check_positive
 from wire import JointSample, TemperatureSample, TrackerSample
 
 Sample = JointSample | TrackerSample | TemperatureSample
@@ -49,17 +48,16 @@ class StreamingConfig:
     lead_s: float = 0.5
 
     def __post_init__(self) -> None:
-        for name in (
+        check_positive(
+            "streaming",
+            self,
             "joint_rate_hz",
             "temperature_rate_hz",
             "settle_s",
             "dwell_s",
             "max_move_s",
             "lead_s",
-        ):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ConfigError(f"streaming.{name} must be > 0, got {value}")
+        )
         if self.period_s is not None and not self.period_s > self.settle_s + self.dwell_s:
             raise ConfigError(
                 f"streaming.period_s must exceed settle_s + dwell_s = "

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kinematics.errors import ConfigError
+from kinematics.errors import ConfigError, check_positive
 from wire import (
     Batch,
     DataPoint,
@@ -79,21 +79,19 @@ class WindowConfig:
             raise ConfigError(f"window.batch_size must be >= 1, got {self.batch_size}")
         if self.n_joints < 1:
             raise ConfigError(f"window.n_joints must be >= 1, got {self.n_joints}")
-        for name in (
+        check_positive(
+            "window",
+            self,
             "joint_tolerance_s",
             "temperature_tolerance_s",
             "settle_window_s",
             "max_buffer_s",
-        ):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ConfigError(f"window.{name} must be > 0, got {value}")
+        )
         if not self.settle_velocity_rad_s > 0:
             raise ConfigError(
                 f"window.settle_velocity_rad_s must be > 0, got {self.settle_velocity_rad_s}"
             )
-        if not (math.isfinite(self.max_ahead_s) and self.max_ahead_s > 0):
-            raise ConfigError(f"window.max_ahead_s must be > 0, got {self.max_ahead_s}")
+        check_positive("window", self, "max_ahead_s")
         if not self.max_ahead_of_clock_s >= 0:
             raise ConfigError(
                 f"window.max_ahead_of_clock_s must be >= 0 (0: off), got "
