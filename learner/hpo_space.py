@@ -96,16 +96,8 @@ def suggest(trial: optuna.Trial, space: SearchSpace) -> TrialParams:
 def learner_defaults(space: SearchSpace) -> dict | None:
     """The learner's default configs as parameters of ``space`` (None where the space excludes
     them): a search's first trial, so every study scores the defaults on its own folds."""
-    m, t = ModelConfig(), TrainConfig()
-    p = TrialParams(
-        hidden_layers=m.hidden_layers,
-        neurons=m.neurons,
-        activation=m.activation,
-        batch_size=t.batch_size,
-        lr=t.lr,
-        weight_decay=t.weight_decay,
-        dropout=m.dropout,
-    )
+    learner = asdict(TrainConfig()) | asdict(ModelConfig())
+    p = TrialParams(**{f.name: learner[f.name] for f in fields(TrialParams)})
     ranged = [f.name for f in fields(SearchSpace) if f.name != "activations"]
     inside = all(getattr(space, k)[0] <= getattr(p, k) <= getattr(space, k)[1] for k in ranged)
     return asdict(p) if inside and p.activation in space.activations else None
