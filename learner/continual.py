@@ -40,7 +40,7 @@ from kinematics.errors import DatasetError, SnapshotError
 from kinematics.model import RobotModel
 from learner.base import PhysicsBase, identify_base, nominal_base
 from learner.config import ContinualConfig
-from learner.continual_base import due, memory_base, status
+from learner.continual_base import due, memory_base
 from learner.continual_state import (  # noqa: F401
     STATE_SCHEMA,
     state_from_bytes,
@@ -221,7 +221,7 @@ class ContinualLearner:
         """Retrain on the base the memory identifies when due (:mod:`learner.continual_base`);
         publish it if the held-out error falls."""
         cal = (self._cal_x, self._cal_y)
-        if len(cal[0]) < MIN_CALIBRATION or not due(self.version, status(self.base)):
+        if len(cal[0]) < MIN_CALIBRATION or not due(self.version, self.base):
             return
         base = memory_base(self.base, self.trained.spec, self._mem_x, self._mem_y)
         if base is None:

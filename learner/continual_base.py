@@ -1,16 +1,21 @@
-"""When and from which points a continual learner re-identifies its physics base.
+"""When and from which points a continual learner identifies its physics base again.
 
 A learner identifies its base (``auto`` or ``geometric``, :mod:`learner.base`) from its first
-``init`` points and would keep it for good; batch training identifies it from every training
-point. On the simulated paper campaign the first 50 points leave the base 0.858 mm off on the
-test points against 0.743 mm from all 2,704 (200 points spread over the stream: 0.745 mm), a
-difference the residual network must then learn. So the learner identifies it again from
-points spread over its replay memory each time the versions double (8, 16, 32, ...), and an
-``auto`` base the first points left on the nominal every :data:`LATE_BASE_EVERY` versions until
-identified. The caller retrains on the new base and keeps it only where the held-out error falls.
+``init`` points; batch training identifies it from every training point. An ``auto`` base the
+first points left on the nominal is identified from points spread over the replay memory every
+:data:`LATE_BASE_EVERY` versions until it is. A base the first points identified only weakly
+(condition number above :data:`REIDENTIFY_CONDITION`) is identified again once, at version
+:data:`FIRST_REIDENTIFY`: UR10 Series B's first 50 points (condition 54.6, 0.761 mm off alone
+against 0.416 mm from all points) ended ``robocal continual`` at 0.543 mm, identified again at
+0.398 mm. Well-conditioned ones are kept: on the simulated paper campaign (condition 10.7)
+identifying again at versions 8 and 16 ended 2.5 % worse (three seeds) and made ``make demo``
+34 s slower (BENCHMARKS.md). The caller retrains on the new base and keeps it only where the
+held-out error falls.
 
->>> due(16, "identified"), due(24, "identified"), due(20, "nominal"), due(21, "nominal")
-(True, False, True, False)
+>>> scheduled(8, "identified", 54.6), scheduled(8, "identified", 10.7)
+(True, False)
+>>> scheduled(16, "identified", 54.6), scheduled(20, "nominal", 0.0), scheduled(21, "nominal", 0.0)
+(False, True, False)
 """
 
 from __future__ import annotations
@@ -24,8 +29,11 @@ from learner.features import FeatureSpec
 
 #: Versions between tries to identify an ``auto`` base the first points left on the nominal.
 LATE_BASE_EVERY = 10
-#: The first version at which an identified base is identified again (then at its doubles).
+#: The version at which a weakly identified base is identified again.
 FIRST_REIDENTIFY = 8
+#: Condition numbers above which the first points' identification counts as weak (between the
+#: paper campaign's 10.7, where identifying again did not help, and UR10 B's 54.6, where it did).
+REIDENTIFY_CONDITION = 30.0
 
 
 def status(base: PhysicsBase) -> str:
@@ -36,12 +44,27 @@ def status(base: PhysicsBase) -> str:
     return "nominal" if base.note.startswith("nominal:") else "identified"
 
 
-def due(version: int, state: str) -> bool:
-    """Whether the base in ``state`` (:func:`status`) is identified again at ``version``."""
+def condition(base: PhysicsBase) -> float:
+    """The condition number the base was identified with (from its note; NaN when none)."""
+    _, found, number = base.note.rpartition("condition number ")
+    try:
+        return float(number) if found else float("nan")
+    except ValueError:
+        return float("nan")
+
+
+def due(version: int, base: PhysicsBase) -> bool:
+    """Whether ``base`` is identified again at ``version`` (:func:`scheduled`)."""
+    return scheduled(version, status(base), condition(base))
+
+
+def scheduled(version: int, state: str, cond: float) -> bool:
+    """Whether a base in ``state`` (:func:`status`), identified with condition number ``cond``,
+    is identified again at ``version``."""
     if state == "nominal":
         return version > 0 and version % LATE_BASE_EVERY == 0
-    is_power = version & (version - 1) == 0
-    return state == "identified" and version >= FIRST_REIDENTIFY and is_power
+    weak = cond > REIDENTIFY_CONDITION
+    return state == "identified" and version == FIRST_REIDENTIFY and weak
 
 
 def memory_base(
