@@ -34,7 +34,8 @@ from learner.base import DEFAULT_BASE, data_frame, make_base
 from learner.config import ModelConfig, TrainConfig
 from learner.features import FeatureSpec
 from learner.hpo import HpoConfig, dataset_arrays, search
-from learner.hpo_space import SearchSpace, load_space
+from learner.hpo_objective import trial_configs
+from learner.hpo_space import SearchSpace, TrialParams, load_space
 from learner.hpo_study import open_storage
 from learner.metrics import accuracy_report
 from learner.model import ErrorModel
@@ -58,6 +59,12 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--base", default=DEFAULT_BASE, help="nominal, geometric, auto, FILE")
     parser.add_argument("--skip-search", action="store_true", help="only the defaults model")
     parser.add_argument("--skip-defaults", action="store_true", help="no defaults model")
+    parser.add_argument(
+        "--candidate",
+        action="append",
+        default=[],
+        help="JSON of trial parameters (another study's selection) trained like the defaults",
+    )
     return parser.parse_args()
 
 
@@ -182,9 +189,15 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for name, run_cfg in runs:
             results[name] = run_search(name, run_cfg, space, data, Path(tmp), args.workers)
+    full = TrainConfig(seed=args.seed, max_epochs=args.default_epochs)
     if not args.skip_defaults:
-        full = TrainConfig(seed=args.seed, max_epochs=args.default_epochs)
         results["defaults"] = trained_like_defaults("learner defaults", data, ModelConfig(), full)
+    for k, raw in enumerate(args.candidate):
+        model_cfg, train_cfg = trial_configs(TrialParams.from_dict(json.loads(raw)), cfg)
+        train_cfg = dataclasses.replace(train_cfg, max_epochs=full.max_epochs)
+        results[f"candidate{k}"] = trained_like_defaults(
+            f"candidate {raw}", data, model_cfg, train_cfg
+        )
     if "nop" in results:
         for key in ("wall", "cpu"):
             saved = 100 * (1 - results["hyperband"][f"{key}_s"] / results["nop"][f"{key}_s"])
