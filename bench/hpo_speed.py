@@ -73,6 +73,7 @@ def tiny(data: str, stop_after: float) -> dict:
         "resume_s": t2 - t1,
         "total_s": t2 - t0,
         "complete": report["complete"],
+        "pruned": report["pruned"],
         "failed": report["failed"],
         "ran_in_resume": report["ran_here"],
         "load": load(),
