@@ -22,6 +22,7 @@ import hashlib
 import json
 from dataclasses import dataclass
 
+from kinematics.dataset import temperature_columns, temperature_name
 from kinematics.description import RobotDescription
 from kinematics.errors import ConfigError
 from learner.model import ErrorModel
@@ -65,7 +66,7 @@ def check_feature_names(names: tuple[str, ...], n_joints: int) -> None:
         raise RejectedMessageError("model_foreign", f"features {names[:n_joints]} are not {q}")
     if rest[:n_joints] == dtheta:
         rest = rest[n_joints:]
-    bad = [n for n in rest if not (n.startswith("temp_") and len(n) > 5)]
+    bad = [n for n in rest if not (temperature_columns([n]) and temperature_name(n))]
     if bad or len(set(rest)) != len(rest):
         raise RejectedMessageError("model_foreign", f"features {bad or rest} are not thermometers")
 
