@@ -171,19 +171,6 @@ def identify_base(kind: str, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray) ->
     )
 
 
-def late_auto_base(
-    base: PhysicsBase, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray
-) -> PhysicsBase | None:
-    """The ``auto`` base identified from points ``X, Y`` seen later in the stream (e.g. the
-    replay memory), where the first points could not identify it; ``None`` when it is not an
-    ``auto`` base left on the nominal, or these points identify it no better."""
-    if base.kind != "auto" or not base.note.startswith("nominal:") or len(X) < IDENTIFY_POINTS:
-        return None
-    spread = np.linspace(0, len(X) - 1, IDENTIFY_POINTS).astype(int)  # the whole memory
-    late = identify_base("auto", spec, X[spread], Y[spread])
-    return None if late.note.startswith("nominal:") else late
-
-
 def file_base(path: str | Path, spec: FeatureSpec, frame: np.ndarray) -> PhysicsBase:
     """A calibrated or gap model file as a base, checked against the nominal; ``frame`` is the
     ``T_W_0`` of the data's base frame (the file's ``T_W_0`` is against the same tracker)."""
@@ -307,7 +294,6 @@ __all__ = [
     "check_same_robot",
     "data_frame",
     "identify_base",
-    "late_auto_base",
     "make_base",
     "nominal_base",
     "reidentify_frames",

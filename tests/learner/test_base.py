@@ -9,13 +9,13 @@ from kinematics.model import RobotModel
 from kinematics.transforms import apply_error, pose_error
 from learner.base import (
     identify_base,
-    late_auto_base,
     make_base,
     nominal_base,
     reidentify_frames,
 )
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from learner.continual import ContinualLearner
+from learner.continual_base import memory_base
 from learner.model import ErrorModel
 from learner.snapshot import snapshot_from_bytes, snapshot_to_bytes
 from learner.workflow import prepare
@@ -80,17 +80,14 @@ def test_an_auto_base_left_on_the_nominal_is_identified_later_from_spread_points
     p = points
     first = identify_base("auto", p.spec, p.X[:5], p.Y[:5])
     assert first.note.startswith("nominal:")
-    assert late_auto_base(first, p.spec, p.X[:100], p.Y[:100]) is None  # fewer than 200 yet
-    late = late_auto_base(first, p.spec, p.X[:250], p.Y[:250])
+    assert memory_base(first, p.spec, p.X[:100], p.Y[:100]) is None  # fewer than 200 yet
+    late = memory_base(first, p.spec, p.X[:250], p.Y[:250])
     assert late is not None and late.kind == "auto" and "condition number" in late.note
     nominal = RobotModel(p.spec.description)
     rest = slice(250, None)
     assert _position_mm(p.Y[rest] - late.error(p.spec, p.X[rest], nominal)) < 0.4 * (
         _position_mm(p.Y[rest])
     )
-    assert late_auto_base(late, p.spec, p.X, p.Y) is None  # identified once
-    geometric = identify_base("geometric", p.spec, p.X[:200], p.Y[:200])
-    assert late_auto_base(geometric, p.spec, p.X, p.Y) is None  # only an auto base
 
 
 def test_the_model_predicts_base_plus_residual_and_its_snapshot_reproduces_it(points):
