@@ -19,7 +19,6 @@ import numpy as np
 import torch
 
 from kinematics.dataset import read_dataset
-from learner.base import reidentify_frames
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from learner.continual import ContinualLearner, load_learner
 from learner.model import ErrorModel
@@ -61,7 +60,7 @@ def ur10(a: str, b: str, rate: float, folder: Path) -> dict:
     learner = load_learner(model_path, ContinualConfig(aci_rate=rate))
     p = prepare(read_dataset(b), test_fraction=0.0, spec=learner.model.spec)
     X, Y = p.X, p.Y
-    learner.rebase(reidentify_frames(learner.base, p.spec, X[:50], Y[:50]))
+    learner.carry(X[:50], Y[:50])
     return prequential(learner, X, Y, 50)
 
 

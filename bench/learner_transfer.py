@@ -1,8 +1,9 @@
 """A model carried into a new day: trained on one UR10 series (physics base + residual, its
 training split), then continued on the other series as ``robocal continual --from`` does. For
 k = 0, 10, 25, 50, 100 of the new series' first points in recorded order (as a new day starts:
-Series A's first 100 span 40-130 deg per joint, B's nearly its whole range): the base's frames
-(``T_W_0``, tool) re-identified from those k points (MAP, the network's residual taken off),
+Series A's first 100 span 40-130 deg per joint, B's nearly its whole range),
+``ContinualLearner.carry``: the base's frames (``T_W_0``, tool) re-identified from those k
+points (MAP, the network's residual taken off) and the carried network's gain fitted on them;
 one update on them, and the new series' held-out test error (10 %, seed 0, drawn over the
 whole series) with 90 % coverage and how much wider the epistemic spread is there than on the
 source's own test points. Both directions, ``--seeds`` seeds. ``--cache DIR`` keeps the trained
@@ -21,7 +22,6 @@ import numpy as np
 import torch
 
 from kinematics.dataset import read_dataset
-from learner.base import reidentify_frames
 from learner.config import ContinualConfig, TrainConfig
 from learner.continual import load_learner
 from learner.metrics import accuracy_report
@@ -54,18 +54,18 @@ def transfer(source: str, target: str, seed: int, epochs: int, folder: Path) -> 
         learner = load_learner(model_path, cfg)
         t0 = time.perf_counter()
         if k:
-            residual = learner.model.residual(X[:k])
-            learner.rebase(reidentify_frames(learner.base, p.spec, X[:k], Y[:k], residual=residual))
+            gain = learner.carry(X[:k], Y[:k])
             frames_only = accuracy_report(learner.model, Xte, Yte).mean_mm
             learner.update(X[:k], Y[:k])
         else:
-            frames_only = float("nan")
+            frames_only, gain = float("nan"), 1.0
         r = accuracy_report(learner.model, Xte, Yte)
         epi = np.sqrt(learner.model.predict(Xte).epistemic()[:, :3]).mean()
         rows.append(
             {
                 "k": k,
                 "frames_only_mm": frames_only,
+                "residual_gain": gain,
                 "mean_mm": r.mean_mm,
                 "p95_mm": r.p95_mm,
                 "max_mm": r.max_mm,

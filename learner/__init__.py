@@ -14,7 +14,8 @@ from kinematics.lazy import lazy_exports
 
 if TYPE_CHECKING:
     from learner.config import ContinualConfig, ModelConfig, TrainConfig
-    from learner.continual import ContinualLearner, UpdateMetrics
+    from learner.continual import ContinualLearner
+    from learner.continual_records import UpdateMetrics
     from learner.evidential import Evidential
     from learner.features import FeatureSpec, dataset_features, dataset_labels, feature_spec
     from learner.metrics import AccuracyReport, accuracy_report
@@ -29,7 +30,8 @@ if TYPE_CHECKING:
 
 _WHERE = {
     "config": ("ContinualConfig", "ModelConfig", "TrainConfig"),
-    "continual": ("ContinualLearner", "UpdateMetrics"),
+    "continual": ("ContinualLearner",),
+    "continual_records": ("UpdateMetrics",),
     "evidential": ("Evidential",),
     "features": ("FeatureSpec", "dataset_features", "dataset_labels", "feature_spec"),
     "metrics": ("AccuracyReport", "accuracy_report"),

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -38,9 +38,10 @@ import torch
 
 from kinematics.errors import DatasetError, SnapshotError
 from kinematics.model import RobotModel
-from learner.base import PhysicsBase, identify_base, nominal_base
+from learner.base import PhysicsBase, identify_base, nominal_base, reidentify_frames
 from learner.config import ContinualConfig
 from learner.continual_base import due, memory_base
+from learner.continual_records import Memory, UpdateMetrics
 from learner.continual_state import (  # noqa: F401
     STATE_SCHEMA,
     state_from_bytes,
@@ -53,43 +54,10 @@ from learner.quarantine import state_from_dict as quarantine_from_dict
 from learner.replay import replay_strategy
 from learner.snapshot import load_snapshot, snapshot_from_bytes, snapshot_to_bytes
 
-
-@dataclass(frozen=True, kw_only=True)
-class UpdateMetrics:
-    """What one update did. Errors are position-error norms in mm: ``batch_*`` of the new
-    points before training (prequential), ``train_*`` of the memory after training,
-    ``holdout_mm`` the published model's median on the held-out set (NaN without one).
-    ``quarantined`` counts this step's points kept out; ``withheld`` says the gate kept the
-    last published model."""
-
-    version: int
-    n_seen: int
-    n_new: int
-    memory_size: int
-    new_in_memory: int
-    epochs: int
-    train_time_s: float
-    batch_mean_mm: float
-    batch_max_mm: float
-    train_mean_mm: float
-    skipped_steps: int
-    quarantined: int = 0
-    withheld: bool = False
-    holdout_mm: float = float("nan")
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-
-@dataclass(frozen=True)
-class Memory:
-    """The replay memory: features ``x`` (M, F) raw SI and labels ``y`` (M, 6)."""
-
-    x: np.ndarray
-    y: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.x.shape[0])
+#: Held-out points of a new day (since :meth:`ContinualLearner.carry`) from which the carried
+#: network's gain is re-fitted on them after each update; until then the gain fitted on the
+#: day's first points stands.
+MIN_DAY_POINTS = 20
 
 
 class ContinualLearner:
@@ -112,6 +80,7 @@ class ContinualLearner:
         self.version = 0
         self.quarantine = QuarantineState.empty()
         self.n_withheld = 0
+        self.carried = False  # a carried model on a new day (carry()): its gain is re-fitted
         if model.is_fitted:  # a trained model (a snapshot) goes on learning with an empty memory
             self.trained = _copy(model)
             self.version = 1
@@ -259,6 +228,21 @@ class ContinualLearner:
         self._mem_x, self._mem_y = X[keep], Y[keep]
         self.n_seen = len(X)
 
+    def carry(self, X: np.ndarray, Y: np.ndarray) -> float:
+        """Start a new day or cell from its first points ``X, Y``: re-identify the base's frames
+        (the network's residual taken off, :func:`learner.base.reidentify_frames`), empty the
+        held-out set (it was another day's) and fit the carried network's gain on these points,
+        which it never saw (:meth:`ErrorModel.weigh_residual`); returns the gain. It is
+        re-fitted on the day's held-out points after each update once :data:`MIN_DAY_POINTS`
+        are there."""
+        X, Y = self._check(X, Y)
+        spec, residual = self.model.spec, self.model.residual(X)
+        self.rebase(reidentify_frames(self.base, spec, X, Y, residual=residual))
+        self._cal_x, self._cal_y = self._cal_x[:0], self._cal_y[:0]
+        self.trained.residual_gain = self.model.weigh_residual(X, Y)
+        self.carried = True
+        return self.trained.residual_gain
+
     def rebase(self, base: PhysicsBase) -> None:
         """Put both models on a new physics base (e.g. frames re-identified on a new day); the
         memory's labels move with it so that each point keeps its residual."""
@@ -281,7 +265,8 @@ class ContinualLearner:
 
     def _publish(self) -> None:
         """Move the published weights towards the trained ones by ``average``; calibrate the
-        result on the held-out set (or take the trained model's scale while it is too small)."""
+        result on the held-out set (or take the trained model's scale while it is too small);
+        after a :meth:`carry`, re-weigh the network on the day's held-out points first."""
         with torch.no_grad():
             for published, trained in zip(
                 self.model.net.state_dict().values(),
@@ -289,6 +274,8 @@ class ContinualLearner:
                 strict=True,
             ):
                 published.lerp_(trained, self.cfg.average)
+        if self.carried and len(self._cal_x) >= MIN_DAY_POINTS:
+            self.trained.residual_gain = self.model.weigh_residual(self._cal_x, self._cal_y)
         if len(self._cal_x) >= MIN_CALIBRATION:
             self.model.calibrate(self._cal_x, self._cal_y)
         else:
@@ -348,6 +335,7 @@ class ContinualLearner:
             "n_seen": self.n_seen,
             "version": self.version,
             "n_withheld": self.n_withheld,
+            "carried": self.carried,
             **self.quarantine.to_dict(),
             "rng": self.rng.bit_generator.state,
             "model": snapshot_to_bytes(self.model),
@@ -369,6 +357,7 @@ class ContinualLearner:
             n_seen, version = int(state["n_seen"]), int(state["version"])
             rng_state = state["rng"]
             quarantine, n_withheld = quarantine_from_dict(state), int(state.get("n_withheld", 0))
+            carried = bool(state.get("carried", False))
         except (KeyError, TypeError, ValueError) as exc:
             raise SnapshotError(f"continual state is incomplete: {exc}") from None
         if model.feature_names != self.model.feature_names:
@@ -382,6 +371,7 @@ class ContinualLearner:
         self.aci_log_scale = aci
         self.n_seen, self.version = n_seen, version
         self.quarantine, self.n_withheld = quarantine, n_withheld
+        self.carried = carried
         self.rng.bit_generator.state = rng_state
 
 

@@ -93,6 +93,7 @@ class ErrorModel:
         label_std: np.ndarray | None = None,
         interval_scale: np.ndarray | None = None,
         base: PhysicsBase | None = None,
+        residual_gain: float = 1.0,
     ) -> None:
         self.spec = spec
         self.base = base
@@ -105,6 +106,7 @@ class ErrorModel:
         self.interval_scale = (
             np.ones(N_LABELS) if interval_scale is None else np.asarray(interval_scale, dtype=float)
         )
+        self.residual_gain = float(residual_gain)
         self.net = EvidentialEnsemble(
             n_inputs=n_inputs(spec, model_cfg.encoding),
             hidden_layers=model_cfg.hidden_layers,
@@ -196,9 +198,11 @@ class ErrorModel:
     def predict(self, X: np.ndarray) -> Evidential:
         """NIG prediction in label units (m, rad) for raw SI features ``(N, F)``: the base's
         error plus the network's residual, the latter weighed against its prior (the spread of
-        the training residuals) by its epistemic variance. Where the network extrapolates
-        (another day's poses, 10-200x its in-distribution epistemic spread on UR10), the
-        prediction falls back to the base instead of growing with the network's guess."""
+        the training residuals) by its epistemic variance and scaled by :attr:`residual_gain`
+        (1 unless a new day's points said how far a carried network still holds,
+        :meth:`weigh_residual`). Where the network extrapolates (another day's poses, 10-200x
+        its in-distribution epistemic spread on UR10), the prediction falls back to the base
+        instead of growing with the network's guess."""
         gamma, nu, alpha, beta = (t.double().numpy() for t in self.predict_scaled(self.scale_x(X)))
         mean = np.zeros(N_LABELS) if self.label_mean is None else self.label_mean
         std = np.ones(N_LABELS) if self.label_std is None else self.label_std
@@ -207,7 +211,8 @@ class ErrorModel:
             epistemic = beta * std**2 / (nu * (alpha - 1.0))
             residual = mean + (std**2 / (std**2 + epistemic)) * (residual - mean)
         beta = beta * (std * self.interval_scale) ** 2
-        return Evidential(gamma=residual + self.base_error(X), nu=nu, alpha=alpha, beta=beta)
+        gamma = self.residual_gain * residual + self.base_error(X)
+        return Evidential(gamma=gamma, nu=nu, alpha=alpha, beta=beta)
 
     def residual(self, X: np.ndarray) -> np.ndarray:
         """What the network adds to the base at ``X`` ``(N, 6)`` (m, rad), as :meth:`predict`
@@ -215,6 +220,22 @@ class ErrorModel:
         if self.label_mean is None:
             return np.zeros((np.shape(X)[0], N_LABELS))
         return self.predict(X).gamma - self.base_error(X)
+
+    def weigh_residual(self, X: np.ndarray, Y: np.ndarray) -> float:
+        """Fit :attr:`residual_gain` in [0, 1] to points the network never trained on (least
+        squares of the labels less the base, all six components in standardised units); returns
+        it. A network carried to another day or cell learned its residual elsewhere: on UR10 A's
+        network at B's poses the gain is 0-0.1, and leaving it at 1 costs 0.2-0.4 mm."""
+        Y = _check_labels(Y)
+        self.residual_gain = 1.0
+        if not self.is_fitted:
+            return self.residual_gain
+        residual = self.residual(X) / self.label_std
+        target = (Y - self.base_error(X)) / self.label_std
+        power = float(np.sum(residual**2))
+        gain = float(np.sum(residual * target)) / power if power > 0 else 1.0
+        self.residual_gain = float(np.clip(gain, 0.0, 1.0))
+        return self.residual_gain
 
     def calibrate(self, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
         """Fit the per-component factor on the Student-t scale that minimises the predictive

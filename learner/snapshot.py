@@ -78,6 +78,7 @@ def snapshot_to_bytes(model: ErrorModel, extra_meta: dict | None = None) -> byte
         "fitted": model.is_fitted,
         "metrics": model.metrics,
         "base": None if base is None else _base_meta(base),
+        "residual_gain": model.residual_gain,
         "extra": extra_meta or {},
     }
     try:
@@ -142,6 +143,7 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
             label_std=tensors["label_std"].numpy() if meta["fitted"] else None,
             interval_scale=tensors["interval_scale"].numpy(),
             base=_base_from_meta(meta.get("base"), tensors),
+            residual_gain=float(meta.get("residual_gain", 1.0)),
         )
         state = {k[len("net.") :]: v for k, v in tensors.items() if k.startswith("net.")}
         model.net.load_state_dict(state, strict=True)

@@ -24,10 +24,10 @@ from learner.base import (
     check_same_robot,
     data_frame,
     make_base,
-    reidentify_frames,
 )
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
-from learner.continual import ContinualLearner, UpdateMetrics
+from learner.continual import ContinualLearner
+from learner.continual_records import UpdateMetrics
 from learner.features import FeatureSpec, dataset_feature_spec, dataset_features, dataset_labels
 from learner.metrics import AccuracyReport, accuracy_report
 from learner.model import ErrorModel, TrainReport
@@ -157,8 +157,9 @@ def continual_on_dataset(
     """Stream the training split in its recorded order through a :class:`ContinualLearner`
     (``init`` points first, then batches of ``cfg.batch``), evaluating the test split after
     every update. ``base`` is ``cfg.base`` or a model file. With ``start`` (a learner carried
-    from another day, :func:`load_learner`) its frames are re-identified from the first
-    ``init`` points before they are learned (:func:`learner.base.reidentify_frames`)."""
+    from another day, :func:`load_learner`) its frames are re-identified and its network
+    weighed from the first ``init`` points before they are learned
+    (:meth:`ContinualLearner.carry`)."""
     if start is None:
         p = prepare(ds, test_fraction=test_fraction, seed=seed)
         physics = None  # identified by the learner from its first points
@@ -173,9 +174,7 @@ def continual_on_dataset(
     train = np.sort(p.train)
     Xtr, Ytr = p.X[train], p.Y[train]
     if start is not None:
-        first = slice(0, cfg.init)
-        X0, Y0, model = Xtr[first], Ytr[first], learner.model
-        learner.rebase(reidentify_frames(learner.base, p.spec, X0, Y0, residual=model.residual(X0)))
+        learner.carry(Xtr[: cfg.init], Ytr[: cfg.init])
     Xte, Yte = p.X[p.test], p.Y[p.test]
     updates, curve = [], []
     for m in learner.learn_stream(Xtr, Ytr):

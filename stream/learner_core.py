@@ -26,9 +26,10 @@ from safetensors.numpy import save as np_save
 from kinematics.description import RobotDescription
 from kinematics.errors import ConfigError, RobocalError, SnapshotError
 from kinematics.model import RobotModel
-from learner.base import check_same_robot, reidentify_frames
+from learner.base import check_same_robot
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
-from learner.continual import ContinualLearner, UpdateMetrics, load_learner
+from learner.continual import ContinualLearner, load_learner
+from learner.continual_records import UpdateMetrics
 from learner.continual_state import state_from_bytes, state_to_bytes
 from learner.features import FeatureSpec, feature_spec
 from learner.holdout import HeldOut, MemoryAge, heldout_metrics, holdout_mask
@@ -130,10 +131,8 @@ class LearnerCore:
         X, Y = self.features(batch)
         if not (np.isfinite(X).all() and np.isfinite(Y).all()):
             raise RejectedMessageError("non_finite", f"batch {batch.seq}: non-finite features")
-        if self._reidentify:  # a carried model's first batch: this cell's frames
-            spec = self.learner.model.spec
-            residual = self.learner.model.residual(X)
-            self.learner.rebase(reidentify_frames(self.learner.base, spec, X, Y, residual=residual))
+        if self._reidentify:  # a carried model's first batch: this cell's frames and trust
+            self.learner.carry(X, Y)
             self._reidentify = False
         if self.learner is None:
             model = ErrorModel.create(

@@ -37,7 +37,7 @@ import zenoh
 
 from kinematics.description import RobotDescription
 from kinematics.errors import SnapshotError
-from learner.continual import UpdateMetrics
+from learner.continual_records import UpdateMetrics
 from learner.snapshot import snapshot_to_bytes
 from stream.bus import Received
 from stream.learner_core import LearnerCore, LearnerStageConfig, Update

@@ -1,0 +1,86 @@
+"""A model carried into a new day: the network weighed by what the day's points show
+(``ErrorModel.weigh_residual``, ``ContinualLearner.carry``)."""
+
+import numpy as np
+import pytest
+
+from learner.config import ContinualConfig, ModelConfig, TrainConfig
+from learner.continual import MIN_DAY_POINTS, ContinualLearner, state_from_bytes, state_to_bytes
+from learner.model import ErrorModel
+from learner.snapshot import snapshot_from_bytes, snapshot_to_bytes
+from learner.workflow import prepare
+from tests.learner.conftest import make_dataset
+
+
+def _position_mm(model, X, Y):
+    return float(np.linalg.norm((model.predict(X).gamma - Y)[:, :3], axis=1).mean() * 1e3)
+
+
+@pytest.fixture(scope="module")
+def learned():
+    """A small network trained on 200 points of the perturbed Fanuc (nominal base), and 200
+    more points of the same robot."""
+    p = prepare(make_dataset(400, seed=5), test_fraction=0.0)
+    model = ErrorModel.create(
+        p.spec, ModelConfig(hidden_layers=2, neurons=32), TrainConfig(max_epochs=150), seed=0
+    )
+    model.fit(p.X[:200], p.Y[:200])
+    return p, model
+
+
+def _copy(model):
+    return snapshot_from_bytes(snapshot_to_bytes(model))
+
+
+def test_the_gain_keeps_a_network_that_explains_the_day_and_drops_one_that_does_not(learned):
+    p, model = learned
+    X, Y = p.X[200:], p.Y[200:]
+    same = _copy(model)
+    assert same.weigh_residual(X, Y) > 0.8
+    other = _copy(model)
+    day = Y - 0.8 * other.residual(X)  # another day: most of what the network learned is gone
+    before = _position_mm(other, X, day)
+    gain = other.weigh_residual(X, day)
+    assert 0.1 < gain < 0.35
+    assert _position_mm(other, X, day) < 0.7 * before
+    other.residual_gain = 0.0
+    np.testing.assert_allclose(other.predict(X).gamma, other.base_error(X))
+
+
+def test_the_gain_travels_in_the_snapshot(learned):
+    _, model = learned
+    m = _copy(model)
+    m.residual_gain = 0.25
+    assert snapshot_from_bytes(snapshot_to_bytes(m)).residual_gain == 0.25
+    assert model.residual_gain == 1.0
+
+
+def test_a_carried_learner_weighs_its_network_then_learns_the_day_back(learned):
+    """The day's residual is the opposite of what the network learned: the gain drops to 0 at
+    the carry, and comes back once updates on the day's points have taught the network."""
+    p, model = learned
+    X, Y = p.X[200:], p.Y[200:] - 2.0 * model.residual(p.X[200:])
+    cfg = ContinualConfig(memory=150, batch=50, holdout=0.2, epochs_per_update=40, update_lr=3e-3)
+    learner = ContinualLearner(_copy(model), cfg)
+    gain = learner.carry(X[:50], Y[:50])
+    assert gain == 0.0 and learner.model.residual_gain == 0.0
+    state = state_from_bytes(state_to_bytes(learner.state_dict()))
+    assert state["carried"] and len(state["holdout_x"]) == 0
+    gains = []
+    for i in range(0, 200, 50):
+        learner.update(X[i : i + 50], Y[i : i + 50])
+        gains.append(learner.model.residual_gain)
+    assert len(learner.state_dict()["holdout_x"]) >= MIN_DAY_POINTS
+    assert gains[0] == 0.0  # 10 held-out points: the carry's gain stands
+    assert gains[-1] > 0.5
+    restarted = ContinualLearner(_copy(model), cfg)
+    restarted.load_state(state_from_bytes(state_to_bytes(learner.state_dict())))
+    assert restarted.carried and restarted.model.residual_gain == gains[-1]
+
+
+def test_an_uncarried_learner_never_touches_the_gain(learned):
+    p, model = learned
+    learner = ContinualLearner(_copy(model), ContinualConfig(batch=50, holdout=0.5))
+    for i in range(200, 400, 50):
+        learner.update(p.X[i : i + 50], p.Y[i : i + 50])
+    assert not learner.carried and learner.model.residual_gain == 1.0
