@@ -11,6 +11,7 @@ Writes are atomic: a temporary file in the same folder, then a rename.
 
 from __future__ import annotations
 
+import glob
 import json
 import os
 import tempfile
@@ -259,6 +260,17 @@ def atomic_write(path: str | Path, write: Callable[[str], object]) -> Path:
             raise OSError(f"{path}: {str(exc).splitlines()[0] if str(exc) else exc!r}") from None
         raise
     return path
+
+
+def remove_stale_temporaries(path: str | Path) -> int:
+    """Delete what :func:`atomic_write` left beside ``path`` when its process was killed
+    between writing and renaming (``kill -9``, power loss); the count. Only for a file one
+    process owns, at its start (a checkpoint)."""
+    path = Path(path)
+    stale = list(path.parent.glob(f".{glob.escape(path.name)}.*.tmp"))
+    for tmp in stale:
+        tmp.unlink(missing_ok=True)
+    return len(stale)
 
 
 def current_umask() -> int:

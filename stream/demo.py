@@ -27,7 +27,6 @@ from kinematics.dataset import Dataset, temperature_columns, temperature_name
 from kinematics.errors import ConfigError
 from kinematics.model import RobotModel
 from kinematics.transforms import pose_error
-from learner.config import ContinualConfig
 from learner.metrics import accuracy_report
 from learner.snapshot import snapshot_from_bytes
 from sim_sources.cell import SimulatedCell, simulate
@@ -45,7 +44,7 @@ from wire import decode, decode_model, encode, key
 
 # The production example's learner (deploy/robocal.example.toml): the library defaults with a
 # memory large enough for the continual model to match batch training.
-DEMO_LEARNER = LearnerStageConfig(continual=ContinualConfig(memory=2000))
+DEMO_LEARNER = LearnerStageConfig()
 REACHED_M = 1e-6  # a corrected command whose solver residual is below this reaches its target
 
 

@@ -154,13 +154,15 @@ class LearnerCore:
             return None
         self.age.keep(self.learner.memory.x)
         metrics = self.metrics(m.batch_mean_mm, m.train_time_s, now)
+        return self.published(batch.points[-1].t, metrics)
+
+    def published(self, t: float, metrics: Metrics) -> Update:
+        """The update message of the published model, stamped ``t`` (s)."""
+        learner = self.learner
         header = ModelHeader(
-            model_version=self.learner.version,
-            robot=self.desc.name,
-            n_seen=self.learner.n_seen,
-            t=batch.points[-1].t,
+            model_version=learner.version, robot=self.desc.name, n_seen=learner.n_seen, t=t
         )
-        snap = snapshot_to_bytes(self.learner.model, {"model_version": self.learner.version})
+        snap = snapshot_to_bytes(learner.model, {"model_version": learner.version})
         return Update(header, snap, metrics)
 
     def metrics(self, batch_mean_mm: float, train_time_s: float, now: float | None) -> Metrics:

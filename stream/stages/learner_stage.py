@@ -35,10 +35,10 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from kinematics.dataset import remove_stale_temporaries
 from kinematics.description import RobotDescription
 from kinematics.errors import SnapshotError
 from learner.continual_records import UpdateMetrics
-from learner.snapshot import snapshot_to_bytes
 from stream.bus import Received
 from stream.learner_core import LearnerCore, LearnerStageConfig, Update
 from stream.log import JsonLogger
@@ -47,7 +47,6 @@ from stream.state import AcceptedLog, write_atomic
 from wire import (
     Batch,
     Metrics,
-    ModelHeader,
     RejectedMessageError,
     decode,
     encode,
@@ -104,6 +103,8 @@ class LearnerStage(Stage):
         self.accepted_log = None
         if self.checkpoint_path is not None:
             self.accepted_log = AcceptedLog(self.checkpoint_path.with_suffix(".accepted"))
+            if stale := remove_stale_temporaries(self.checkpoint_path):
+                self.log.info("stale_temporaries_removed", robot=robot, files=stale)
         #: Per epoch: the lowest ``seq`` that may still be new, and the ``seq`` s learned above it.
         self._learned: dict[int, tuple[int, set[int]]] = {}
         #: Per epoch: a ``(seq, first)`` that jumped past the numbering, until the next confirms.
@@ -126,19 +127,11 @@ class LearnerStage(Stage):
                     e: {"last_seq": s, "next_point": f} for e, (s, f) in self.core.windows.items()
                 },
             )
-            self._publish(self._restored_update())
+            self._publish(self.core.published(0.0, self.core.metrics(float("nan"), 0.0, None)))
             self._weight = {e: s + 1 for e, (s, _) in self.core.windows.items()}
         self._replay()
         self.answer("model", self._reply_latest)
         self.subscribe("batches")
-
-    def _restored_update(self) -> Update:
-        learner = self.core.learner
-        header = ModelHeader(
-            model_version=learner.version, robot=self.robot, n_seen=learner.n_seen, t=0.0
-        )
-        snap = snapshot_to_bytes(learner.model, {"model_version": learner.version})
-        return Update(header, snap, self.core.metrics(float("nan"), 0.0, None))
 
     def _replay(self) -> None:
         """Learn the batches of the accepted log that the checkpoint does not hold yet."""

@@ -19,12 +19,11 @@ def test_example_config_loads():
 
 
 def test_example_learner_is_the_benchmarked_one():
-    """BENCHMARKS.md measures the library defaults; the example differs only in a memory large
-    enough to match batch training."""
+    """BENCHMARKS.md measures the library defaults; the example runs them."""
     learner = load_config(EXAMPLE).learner
     assert learner.model == ModelConfig()
     assert learner.train == TrainConfig()
-    assert learner.continual == ContinualConfig(memory=2000)
+    assert learner.continual == ContinualConfig()
     assert learner == DEMO_LEARNER  # the main job runs what a line runs
 
 

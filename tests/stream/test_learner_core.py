@@ -202,3 +202,33 @@ def test_the_learner_stage_publishes_the_quarantine(batches):
     assert decode(got["metrics"][-1], Metrics).quarantined == 10
     assert decode(got["diagnostics"][-1], Diagnostics).dropped["quarantined"] == 10
     assert '"event":"points_quarantined"' in log.getvalue()
+
+
+def test_a_restarted_stage_republishes_under_its_description_name_and_sweeps(batches, tmp_path):
+    """The stage's robot is the line's name for it; the model header names the description,
+    after a restart from the checkpoint as on every update. A checkpoint write that a kill -9
+    cut short is removed at the restart (and nothing else)."""
+    ds, bs = batches
+    c = core(ds)
+    for b in bs[:2]:
+        update = c.add_batch(b)
+    write_checkpoint(c, tmp_path / "ck.safetensors")
+    stale = tmp_path / ".ck.safetensors.k9x2.tmp"  # a kill -9 between write and rename
+    stale.write_bytes(b"half a checkpoint")
+    (tmp_path / ".other.safetensors.k9x2.tmp").write_bytes(b"not ours")
+    log = io.StringIO()
+    server = open_session(BusConfig.loopback(free_port(), listen=True))
+    stage = LearnerStage(
+        server, "cell", "arm-7", load_description(ds.meta.robot), CFG,
+        np.asarray(ds.meta.T_W_0), checkpoint=tmp_path / "ck.safetensors",
+        logger=JsonLogger(stream=log),
+    )  # fmt: skip
+    try:
+        restored = stage.last_update.header
+    finally:
+        stage.close(10.0)
+        server.close()
+    assert restored.robot == update.header.robot == ds.meta.robot
+    assert restored.model_version == update.header.model_version
+    assert not stale.exists() and (tmp_path / ".other.safetensors.k9x2.tmp").exists()
+    assert '"event":"stale_temporaries_removed"' in log.getvalue()
