@@ -6,8 +6,10 @@ Series A's first 100 span 40-130 deg per joint, B's nearly its whole range),
 points (MAP, the network's residual taken off) and the carried network's gain fitted on them;
 one update on them, and the new series' held-out test error (10 %, seed 0, drawn over the
 whole series) with 90 % coverage and how much wider the epistemic spread is there than on the
-source's own test points. Both directions, ``--seeds`` seeds. ``--cache DIR`` keeps the trained
-source models (by series, seed and epochs) for the next run.
+source's own test points, and the share of test points the compensation service would flag
+as untrusted (epistemic std above its limit) with the
+90 % coverage on the trusted ones. Both directions, ``--seeds`` seeds. ``--cache DIR`` keeps
+the trained source models (by series, seed and epochs) for the next run.
 
     .venv/bin/python bench/learner_transfer.py --a /tmp/a.parquet --b /tmp/b.parquet --seeds 0 1 2
 """
@@ -26,7 +28,11 @@ from learner.config import ContinualConfig, TrainConfig
 from learner.continual import load_learner
 from learner.metrics import accuracy_report
 from learner.workflow import prepare, train_on_dataset
+from stream.compensation import CompensationConfig
 from stream.reports.learner import write_trained
+
+#: What the compensation service flags as untrusted (epistemic std of a position component).
+EPISTEMIC_LIMIT_MM = CompensationConfig().epistemic_limit_mm
 
 STEPS = (0, 10, 25, 50, 100)
 
@@ -60,7 +66,11 @@ def transfer(source: str, target: str, seed: int, epochs: int, folder: Path) -> 
         else:
             frames_only, gain = float("nan"), 1.0
         r = accuracy_report(learner.model, Xte, Yte)
-        epi = np.sqrt(learner.model.predict(Xte).epistemic()[:, :3]).mean()
+        ev = learner.model.predict(Xte)
+        epi = np.sqrt(ev.epistemic()[:, :3]).mean()
+        lo, hi = ev.interval(0.9)
+        inside = (Yte[:, :3] >= lo[:, :3]) & (Yte[:, :3] <= hi[:, :3])
+        untrusted = np.sqrt(ev.epistemic()[:, :3].max(axis=1)) * 1e3 > EPISTEMIC_LIMIT_MM
         rows.append(
             {
                 "k": k,
@@ -71,6 +81,10 @@ def transfer(source: str, target: str, seed: int, epochs: int, folder: Path) -> 
                 "max_mm": r.max_mm,
                 "coverage_90": r.coverage_90,
                 "epistemic_ratio": float(epi / epi_src),
+                "untrusted_share": float(untrusted.mean()),
+                "coverage_90_trusted": float(inside[~untrusted].mean())
+                if (~untrusted).any()
+                else float("nan"),
                 "time_s": time.perf_counter() - t0,
             }
         )
@@ -94,7 +108,7 @@ def main() -> None:
             runs = [transfer(src, dst, s, args.max_epochs, folder) for s in args.seeds]
             steps = [
                 {
-                    key: float(np.mean([r["steps"][i][key] for r in runs]))
+                    key: float(np.nanmean([r["steps"][i][key] for r in runs]))
                     for key in runs[0]["steps"][i]
                 }
                 for i in range(len(STEPS))

@@ -36,7 +36,7 @@ def state_to_bytes(state: dict) -> bytes:
         "rng": state["rng"],
         "model": state["model"].hex(),
         "trained": state["trained"].hex(),
-        **{k: state[k] for k in ("n_withheld", "carried", "quarantine_meta") if k in state},
+        **{k: state[k] for k in ("n_withheld", "quarantine_meta") if k in state},
     }
     keys = (
         "memory_x",
@@ -44,6 +44,7 @@ def state_to_bytes(state: dict) -> bytes:
         "holdout_x",
         "holdout_y",
         "aci_log_scale",
+        "day_scale",
         "quarantine_labels",
         "quarantine_residuals",
     )
@@ -63,7 +64,7 @@ def state_from_bytes(data: bytes) -> dict:
         return {
             **arrays,
             **{k: meta[k] for k in ("n_seen", "version", "rng")},
-            **{k: meta[k] for k in ("n_withheld", "carried", "quarantine_meta") if k in meta},
+            **{k: meta[k] for k in ("n_withheld", "quarantine_meta") if k in meta},
             **{k: bytes.fromhex(meta[k]) for k in ("model", "trained") if k in meta},
         }
     except (SafetensorError, ValueError, KeyError, TypeError) as exc:

@@ -65,7 +65,7 @@ def test_a_carried_learner_weighs_its_network_then_learns_the_day_back(learned):
     gain = learner.carry(X[:50], Y[:50])
     assert gain == 0.0 and learner.model.residual_gain == 0.0
     state = state_from_bytes(state_to_bytes(learner.state_dict()))
-    assert state["carried"] and len(state["holdout_x"]) == 0
+    assert "day_scale" in state and len(state["holdout_x"]) == 0
     gains = []
     for i in range(0, 200, 50):
         learner.update(X[i : i + 50], Y[i : i + 50])
@@ -75,7 +75,7 @@ def test_a_carried_learner_weighs_its_network_then_learns_the_day_back(learned):
     assert gains[-1] > 0.5
     restarted = ContinualLearner(_copy(model), cfg)
     restarted.load_state(state_from_bytes(state_to_bytes(learner.state_dict())))
-    assert restarted.carried and restarted.model.residual_gain == gains[-1]
+    assert restarted.day_scale is not None and restarted.model.residual_gain == gains[-1]
 
 
 def test_an_uncarried_learner_never_touches_the_gain(learned):
@@ -83,4 +83,4 @@ def test_an_uncarried_learner_never_touches_the_gain(learned):
     learner = ContinualLearner(_copy(model), ContinualConfig(batch=50, holdout=0.5))
     for i in range(200, 400, 50):
         learner.update(p.X[i : i + 50], p.Y[i : i + 50])
-    assert not learner.carried and learner.model.residual_gain == 1.0
+    assert learner.day_scale is None and learner.model.residual_gain == 1.0
