@@ -79,13 +79,18 @@ _FEATURE_EFFECTS = ("geometric", "joint_compliance", "thermal_expansion", "gear_
 
 @dataclass(frozen=True, kw_only=True)
 class PhysicsBase:
-    """Predicted sensor poses from a description, a frame ``T_0_B`` (4, 4) and effects."""
+    """Predicted sensor poses from a description, a frame ``T_0_B`` (4, 4) and effects.
+    ``condition`` is the condition number the base was identified with (NaN when it was not
+    identified from points); ``on_nominal`` marks an ``auto`` base its points left on the
+    nominal; ``note`` says the same for people."""
 
     kind: str
     description: RobotDescription
     T_0_B: np.ndarray
     effects: tuple[EffectEntry, ...] = ()
     note: str = ""
+    condition: float = float("nan")
+    on_nominal: bool = False
 
     @cached_property
     def model(self) -> RobotModel:
@@ -156,18 +161,20 @@ def identify_base(kind: str, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray) ->
     except IdentifiabilityError as exc:
         if kind == "geometric":
             raise
-        return replace(nominal_base(spec.description), kind=kind, note=f"nominal: {exc}")
+        nominal = nominal_base(spec.description)
+        return replace(nominal, kind=kind, note=f"nominal: {exc}", on_nominal=True)
     cond = result.identifiability.condition_number
     if kind == "auto" and cond > AUTO_MAX_CONDITION:
         note = f"nominal: {n} points identify it with condition number {cond:.3g}"
-        return replace(
-            nominal_base(spec.description), kind=kind, note=f"{note} > {AUTO_MAX_CONDITION:g}"
-        )
+        note = f"{note} > {AUTO_MAX_CONDITION:g}"
+        nominal = nominal_base(spec.description)
+        return replace(nominal, kind=kind, note=note, condition=cond, on_nominal=True)
     return PhysicsBase(
         kind=kind,
         description=result.description,
         T_0_B=result.T_W_0,
         note=f"identified from {n} points, condition number {cond:.3g}",
+        condition=cond,
     )
 
 

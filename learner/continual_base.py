@@ -41,21 +41,12 @@ def status(base: PhysicsBase) -> str:
     ``auto`` base left on the nominal) or ``fixed`` (nominal, a file, carried frames)."""
     if base.kind not in ("auto", "geometric"):
         return "fixed"
-    return "nominal" if base.note.startswith("nominal:") else "identified"
-
-
-def condition(base: PhysicsBase) -> float:
-    """The condition number the base was identified with (from its note; NaN when none)."""
-    _, found, number = base.note.rpartition("condition number ")
-    try:
-        return float(number) if found else float("nan")
-    except ValueError:
-        return float("nan")
+    return "nominal" if base.on_nominal else "identified"
 
 
 def due(version: int, base: PhysicsBase) -> bool:
     """Whether ``base`` is identified again at ``version`` (:func:`scheduled`)."""
-    return scheduled(version, status(base), condition(base))
+    return scheduled(version, status(base), base.condition)
 
 
 def scheduled(version: int, state: str, cond: float) -> bool:
@@ -77,4 +68,4 @@ def memory_base(
         return None
     spread = np.linspace(0, len(X) - 1, IDENTIFY_POINTS).astype(int)
     new = identify_base("auto", spec, X[spread], Y[spread])
-    return None if new.note.startswith("nominal:") else replace(new, kind=base.kind)
+    return None if new.on_nominal else replace(new, kind=base.kind)

@@ -161,6 +161,8 @@ def _base_meta(base: PhysicsBase) -> dict:
     return {
         "kind": base.kind,
         "note": base.note,
+        "condition": None if np.isnan(base.condition) else base.condition,
+        "on_nominal": base.on_nominal,
         "description": description_to_toml(base.description),
         "effects": [asdict(e) for e in base.effects],
     }
@@ -171,13 +173,27 @@ def _base_from_meta(meta: dict | None, tensors: dict) -> PhysicsBase | None:
     if not meta:
         return None
     desc = description_from_dict(tomllib.loads(meta["description"]))
+    note = str(meta.get("note", ""))
+    condition = meta.get("condition", _legacy_condition(note))
     return PhysicsBase(
         kind=str(meta["kind"]),
         description=desc.with_tool(tensors["base_tool"].numpy()),
         T_0_B=tensors["base_T_0_B"].numpy(),
         effects=tuple(EffectEntry(**e) for e in meta.get("effects", [])),
-        note=str(meta.get("note", "")),
+        note=note,
+        condition=float("nan") if condition is None else float(condition),
+        on_nominal=bool(meta.get("on_nominal", note.startswith("nominal:"))),
     )
+
+
+def _legacy_condition(note: str) -> float | None:
+    """The condition number that snapshots written before ``condition`` existed give only in
+    their base's note (``"... condition number 10.7"``); None when it names none."""
+    _, found, number = note.rpartition("condition number ")
+    try:
+        return float(number.split()[0]) if found else None
+    except (ValueError, IndexError):
+        return None
 
 
 def save_snapshot(model: ErrorModel, path: str | Path, extra_meta: dict | None = None) -> Path:

@@ -46,10 +46,14 @@ def test_geometric_base_takes_the_geometry_and_leaves_the_rest(points):
 def test_auto_falls_back_to_nominal_when_the_points_cannot_identify(points):
     p = points
     base = identify_base("auto", p.spec, p.X[:5], p.Y[:5])
-    assert base.kind == "auto" and base.note.startswith("nominal:")
+    assert base.kind == "auto" and base.note.startswith("nominal:") and base.on_nominal
     model = ErrorModel.create(p.spec, ModelConfig(hidden_layers=1, neurons=8), TrainConfig(), 0)
     model.base = base  # shares the nominal description's tool: the snapshot still writes
-    assert snapshot_from_bytes(snapshot_to_bytes(model)).base.note == base.note
+    back = snapshot_from_bytes(snapshot_to_bytes(model)).base
+    assert back.note == base.note and back.on_nominal and np.isnan(back.condition)
+    model.base = identify_base("geometric", p.spec, p.X[:200], p.Y[:200])
+    back = snapshot_from_bytes(snapshot_to_bytes(model)).base
+    assert back.condition == model.base.condition and not back.on_nominal
     with pytest.raises(ConfigError, match="base must be one of"):
         identify_base("magic", p.spec, p.X, p.Y)
 
@@ -193,3 +197,25 @@ def test_adaptive_intervals_widen_under_a_shift_and_hold_in_distribution(points)
     inside = ((lo <= Y) & (hi >= Y))[:, :3].mean()
     inside_off = ((lo_off <= Y) & (hi_off >= Y))[:, :3].mean()
     assert inside > inside_off
+
+
+def test_snapshots_from_before_the_typed_fields_read_them_from_the_note(points):
+    import json
+
+    from safetensors.torch import load, save
+
+    from learner.snapshot import read_metadata
+
+    p = points
+    model = ErrorModel.create(p.spec, ModelConfig(hidden_layers=1, neurons=8), TrainConfig(), 0)
+    for base in (
+        identify_base("geometric", p.spec, p.X[:200], p.Y[:200]),
+        identify_base("auto", p.spec, p.X[:5], p.Y[:5]),
+    ):
+        model.base = base
+        data = snapshot_to_bytes(model)
+        meta = read_metadata(data)
+        del meta["base"]["condition"], meta["base"]["on_nominal"]
+        old = snapshot_from_bytes(save(load(data), metadata={"robocal": json.dumps(meta)})).base
+        assert old.on_nominal == base.on_nominal
+        np.testing.assert_allclose(old.condition, base.condition, rtol=1e-2)
