@@ -136,6 +136,8 @@ def test_a_carried_model_goes_on_and_a_foreign_one_is_refused(batches, tmp_path)
     assert day2.learner.version == day1.learner.version == 2
     update = day2.add_batch(bs[3])  # frames re-identified from this batch, then learned
     assert update is not None and update.metrics.model_version == 3
+    assert day2.learner.day_scale is not None  # carried: the network weighed on this batch
+    assert 0.0 <= day2.learner.model.residual_gain <= 1.0
     assert len(day2.learner.memory) == len(day1.learner.memory) == 40
     with pytest.raises(ConfigError, match="is for robot 'fanuc_m900ib700'"):
         LearnerCore(load_description("ur10"), replace(CFG, start_from=str(path)))
