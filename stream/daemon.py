@@ -47,6 +47,10 @@ from stream.stages import (
 )
 from stream.state import StateDirError, check_writable, describe_os_error
 
+#: How long a stopping learner waits for its window's last batch to be learned before it
+#: stops listening (s); once arrived, a batch still queued is learned by the close anyway.
+LAST_BATCH_WAIT_S = 5.0
+
 #: Exit codes: a stage died of a resource failure (disk, permissions), or of anything else.
 EXIT_RESOURCE, EXIT_STAGE = 2, 1
 
@@ -280,8 +284,10 @@ class Daemon:
             if error is not None:
                 failures[f"{src.name}/{src.robot}"] = error
         self.sources.clear()
-        for stage in self.stages:
-            stage.unsubscribe()  # nothing new comes in while the queues are worked off
+        for stage in self.stages:  # nothing new comes in while the queues are worked off; a
+            if not isinstance(stage, LearnerStage):  # learner hears its window's last batch
+                stage.unsubscribe()
+        sent: dict[str, tuple[int, int]] = {}  # robot -> its window's last batch
         for stage in sorted(self.stages, key=lambda st: order.index(st.name)):
             keep = 0.0 if stage.name == "recorder" else reserve
             left = max(deadline - time.monotonic() - keep, 0.5)
@@ -291,6 +297,13 @@ class Daemon:
                         stage.end_of_stream(timeout_s=max(deadline - time.monotonic() - keep, 0.5))
                 except Exception as exc:  # noqa: BLE001 - reported, the others still close
                     failures[f"{stage.name}/{stage.robot}"] = exc
+                if stage.last_batch is not None:
+                    sent[stage.robot] = stage.last_batch
+            if isinstance(stage, LearnerStage) and stage.robot in sent:
+                last = sent[stage.robot]  # the bus delivers it on another thread: wait for it
+                until = time.monotonic() + min(left, LAST_BATCH_WAIT_S)
+                while not stage.has_learned(*last) and time.monotonic() < until:
+                    time.sleep(0.01)
             error = stage.close(timeout_s=max(deadline - time.monotonic() - keep, 0.5))
             if error is not None:
                 failures[f"{stage.name}/{stage.robot}"] = error

@@ -226,6 +226,12 @@ class LearnerStage(Stage):
                 withheld_total=self.core.learner.n_withheld,
             )
 
+    def has_learned(self, epoch: int, seq: int) -> bool:
+        """Whether batch ``seq`` of the window run ``epoch`` was learned (or lies below what
+        this stage still tracks of that run)."""
+        floor, learned = self._learned.get(epoch, (0, set()))
+        return seq < floor or seq in learned
+
     def _advance(self, b: Batch) -> None:
         """Move the run's numbering (kept with the checkpoint) on: by the next ``seq``, or by a
         jump once the batch after it confirms it (a forged jump is never confirmed, so it never

@@ -68,6 +68,8 @@ class WindowStage(Stage):
             )  # fmt: skip
         self.points = 0
         self.batches = 0
+        #: ``(epoch, seq)`` of the last batch sent, None before the first.
+        self.last_batch: tuple[int, int] | None = None
         self._last_seq: dict[str, tuple[int, float]] = {}
         self._emit([], restored)
         for stream in ("joints", "tracker", "temperature"):
@@ -141,6 +143,7 @@ class WindowStage(Stage):
         for b in batches:
             self.put("batches", encode(b))
             self.batches += 1
+            self.last_batch = (b.epoch, b.seq)
 
     def end_of_stream(self, timeout_s: float = 60.0) -> None:
         """Resolve pending tracker samples and send the partial batch (call after drain)."""

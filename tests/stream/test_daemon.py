@@ -12,7 +12,9 @@ from sim_sources.cell import simulate
 from sim_sources.scenarios import get_scenario
 from sim_sources.streaming import StreamingConfig
 from stream.bus import BusConfig, free_port, open_session
+from stream.learner_core import LearnerCore, LearnerStageConfig
 from stream.sources import SimCellSource
+from stream.stages.learner_stage import read_checkpoint
 from tests.stream.conftest import daemon_config, kill_running, start_daemon, wait_alive
 from wire import decode_model, key
 
@@ -56,6 +58,12 @@ def test_run_learns_stops_on_sigterm_and_restarts_from_its_checkpoint(tmp_path):
         ]
         assert {"daemon_started", "model_published", "daemon_stopped"} <= {x["event"] for x in logs}
         assert (tmp_path / f"{robot}.checkpoint.safetensors").exists()
+        # the window's partial batch, sent at the stop, is learned before the learner stops
+        core = LearnerCore.__new__(LearnerCore)
+        core.cfg, core.desc = LearnerStageConfig(), None
+        read_checkpoint(core, tmp_path / f"{robot}.checkpoint.safetensors")
+        joined = json.loads((tmp_path / f"{robot}.window.json").read_text())["points"]
+        assert core.n_points == joined == len(ds)  # 41: two batches of 20 and one point
         with (tmp_path / "plant.mcap").open("rb") as f:
             summary = make_reader(f).get_summary()
         topics = {c.topic for c in summary.channels.values()}
