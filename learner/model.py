@@ -225,7 +225,8 @@ class ErrorModel:
         """Fit :attr:`residual_gain` in [0, 1] to points the network never trained on (least
         squares of the labels less the base, all six components in standardised units); returns
         it. A network carried to another day or cell learned its residual elsewhere: on UR10 A's
-        network at B's poses the gain is 0-0.1, and leaving it at 1 costs 0.2-0.4 mm."""
+        network at B's poses the gain is 0-0.1, and leaving it at 1 cost 0.07-0.45 mm (after
+        100 points, BENCHMARKS.md)."""
         Y = _check_labels(Y)
         self.residual_gain = 1.0
         if not self.is_fitted:
