@@ -67,10 +67,11 @@ def transfer(source: str, target: str, seed: int, epochs: int, folder: Path) -> 
             frames_only, gain = float("nan"), 1.0
         r = accuracy_report(learner.model, Xte, Yte)
         ev = learner.model.predict(Xte)
-        epi = np.sqrt(ev.epistemic()[:, :3]).mean()
+        epi_std = np.sqrt(ev.epistemic()[:, :3])
+        epi = epi_std.mean()
         lo, hi = ev.interval(0.9)
         inside = (Yte[:, :3] >= lo[:, :3]) & (Yte[:, :3] <= hi[:, :3])
-        untrusted = np.sqrt(ev.epistemic()[:, :3].max(axis=1)) * 1e3 > EPISTEMIC_LIMIT_MM
+        untrusted = epi_std.max(axis=1) * 1e3 > EPISTEMIC_LIMIT_MM
         rows.append(
             {
                 "k": k,

@@ -238,6 +238,10 @@ def read_dataset(path: str | Path, limits_rad: np.ndarray | None = None) -> Data
     return ds
 
 
+#: :func:`atomic_write`'s temporary file beside ``name``: ``.<name>.<random>.tmp``.
+_TMP_PREFIX, _TMP_SUFFIX = ".{name}.", ".tmp"
+
+
 def atomic_write(path: str | Path, write: Callable[[str], object]) -> Path:
     """Call ``write(tmp)`` on a temporary file beside ``path``, then rename it over ``path``:
     nothing half-written remains, the file gets the user's umask (not mkstemp's 0600), and an
@@ -246,7 +250,8 @@ def atomic_write(path: str | Path, write: Callable[[str], object]) -> Path:
     tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        prefix = _TMP_PREFIX.format(name=path.name)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=prefix, suffix=_TMP_SUFFIX)
         os.close(fd)
         write(tmp)
         os.chmod(tmp, 0o666 & ~current_umask())
@@ -267,7 +272,8 @@ def remove_stale_temporaries(path: str | Path) -> int:
     between writing and renaming (``kill -9``, power loss); the count. Only for a file one
     process owns, at its start (a checkpoint)."""
     path = Path(path)
-    stale = list(path.parent.glob(f".{glob.escape(path.name)}.*.tmp"))
+    prefix = _TMP_PREFIX.format(name=glob.escape(path.name))
+    stale = list(path.parent.glob(f"{prefix}*{_TMP_SUFFIX}"))
     for tmp in stale:
         tmp.unlink(missing_ok=True)
     return len(stale)

@@ -278,12 +278,12 @@ class ContinualLearner:
                 strict=True,
             ):
                 published.lerp_(trained, self.cfg.average)
-        young = self.day_scale is not None and len(self._cal_x) < MIN_DAY_POINTS
-        if self.day_scale is not None and not young:
-            self.trained.residual_gain = self.model.weigh_residual(self._cal_x, self._cal_y)
-        if young:
+        carried = self.day_scale is not None
+        if carried and len(self._cal_x) < MIN_DAY_POINTS:  # a young day: the scale it came with
             self.model.interval_scale = self.day_scale.copy()
         elif len(self._cal_x) >= MIN_CALIBRATION:
+            if carried:
+                self.trained.residual_gain = self.model.weigh_residual(self._cal_x, self._cal_y)
             self.model.calibrate(self._cal_x, self._cal_y)
         else:
             self.model.interval_scale = self.trained.interval_scale.copy()
