@@ -9,7 +9,9 @@ whole series) with 90 % coverage and how much wider the epistemic spread is ther
 source's own test points, and the share of test points the compensation service would flag
 as untrusted (epistemic std above its limit) with the
 90 % coverage on the trusted ones. Both directions, ``--seeds`` seeds. ``--cache DIR`` keeps
-the trained source models (by series, seed and epochs) for the next run.
+the trained source models (by series, base, seed and epochs) for the next run. ``--base-a`` /
+``--base-b`` are the source models' bases (a kind or a model file, e.g. ``robocal gap``'s),
+``--frame-prior-mm`` the carry's frame prior (``ContinualConfig.frame_prior_mm``).
 
     .venv/bin/python bench/learner_transfer.py --a /tmp/a.parquet --b /tmp/b.parquet --seeds 0 1 2
 """
@@ -24,7 +26,7 @@ import numpy as np
 import torch
 
 from kinematics.dataset import read_dataset
-from learner.config import ContinualConfig, TrainConfig
+from learner.config import DEFAULT_BASE, FRAME_PRIOR_MM, ContinualConfig, TrainConfig
 from learner.continual import load_learner
 from learner.metrics import accuracy_report
 from learner.workflow import prepare, train_on_dataset
@@ -37,19 +39,23 @@ EPISTEMIC_LIMIT_MM = CompensationConfig().epistemic_limit_mm
 STEPS = (0, 10, 25, 50, 100)
 
 
-def transfer(source: str, target: str, seed: int, epochs: int, folder: Path) -> dict:
-    model_path = folder / f"{Path(source).stem}_seed{seed}_e{epochs}.safetensors"
+def transfer(
+    source: str, target: str, seed: int, epochs: int, folder: Path, base: str, prior_mm: float
+) -> dict:
+    """One source model (trained on ``base``, cached in ``folder``) carried to ``target``."""
+    tag = "" if base == DEFAULT_BASE else f"_{Path(base).parent.name}_{Path(base).stem}"
+    model_path = folder / f"{Path(source).stem}{tag}_seed{seed}_e{epochs}.safetensors"
     src = read_dataset(source)
     if model_path.is_file():
         model = load_learner(model_path, ContinualConfig(seed=seed)).model
         source_mm = model.metrics["mean_mm"]
     else:
         result = train_on_dataset(
-            src, seed=seed, train_cfg=TrainConfig(max_epochs=epochs, seed=seed)
+            src, seed=seed, train_cfg=TrainConfig(max_epochs=epochs, seed=seed), base=base
         )
         write_trained(result, model_path)
         model, source_mm = result.model, result.test.mean_mm
-    cfg = ContinualConfig(seed=seed)
+    cfg = ContinualConfig(seed=seed, frame_prior_mm=prior_mm)
     p_src = prepare(src, test_fraction=0.1, seed=seed, spec=model.spec)
     epi_src = np.sqrt(model.predict(p_src.X[p_src.test]).epistemic()[:, :3]).mean()
     p = prepare(read_dataset(target), test_fraction=0.1, seed=0, spec=model.spec)
@@ -99,14 +105,23 @@ def main() -> None:
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     ap.add_argument("--max-epochs", type=int, default=300)
     ap.add_argument("--cache", help="folder keeping the trained source models between runs")
+    ap.add_argument("--base-a", default=DEFAULT_BASE, help="A's base: a kind or a model file")
+    ap.add_argument("--base-b", default=DEFAULT_BASE, help="B's base: a kind or a model file")
+    ap.add_argument(
+        "--frame-prior-mm", type=float, default=FRAME_PRIOR_MM, help="the carry's frame prior"
+    )
     args = ap.parse_args()
     torch.set_num_threads(1)
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(args.cache or tmp)
         folder.mkdir(parents=True, exist_ok=True)
-        for name, (src, dst) in {"A->B": (args.a, args.b), "B->A": (args.b, args.a)}.items():
-            runs = [transfer(src, dst, s, args.max_epochs, folder) for s in args.seeds]
+        directions = {"A->B": (args.a, args.b, args.base_a), "B->A": (args.b, args.a, args.base_b)}
+        for name, (src, dst, base) in directions.items():
+            runs = [
+                transfer(src, dst, s, args.max_epochs, folder, base, args.frame_prior_mm)
+                for s in args.seeds
+            ]
             steps = [
                 {
                     key: float(np.nanmean([r["steps"][i][key] for r in runs]))

@@ -54,7 +54,7 @@ from kinematics.identification.conditions import observations_from_dataset
 from kinematics.identification.fitting import fit_effects, jacobian
 from kinematics.model import RobotModel
 from kinematics.transforms import apply_error, invert, pose_error, xyz_quat_from_transform
-from learner.config import BASE_KINDS, DEFAULT_BASE
+from learner.config import BASE_KINDS, DEFAULT_BASE, FRAME_PRIOR_MM
 from learner.features import FeatureSpec
 
 #: Points ``auto`` identifies the geometric base from (the first of the stream).
@@ -63,16 +63,6 @@ IDENTIFY_POINTS = 200
 #: stream often lie in one region, where a calibration fits them and extrapolates by mm (UR10
 #: Series A in time order: condition 3.4e3, 11 mm off on the rest against 0.74 mm nominal).
 AUTO_MAX_CONDITION = 100.0
-#: Prior of a re-identified frame parameter (:func:`reidentify_frames`): a Gaussian whose std
-#: moves the tool pose by this much (m, RMS over the new points; rotations on a 1 m lever),
-#: weighed against what a free fit of the frames leaves (``s_p``), so the source's frames count
-#: as about ``(s_p / FRAME_PRIOR_M)²`` points. A new day's first points, often from one region,
-#: carry the robot's local error (0.3-0.5 mm on a UR10), which a free fit folds into frame
-#: rotations that tilt the far workspace; where the carried network explains the rest,
-#: ``s_p`` is small and the frames move freely (a re-mounted tool). UR10, geometric base alone,
-#: frames from the first 10 / 100 points: A -> B 0.82 / 0.59 mm free, 0.56 / 0.53 mm held;
-#: B -> A 1.17 / 0.73 mm free, 0.78 / 0.59 mm held (BENCHMARKS.md, "Carried into a new day").
-FRAME_PRIOR_M = 3e-5
 #: Effects a base evaluates from model features alone (others need signals a model lacks).
 _FEATURE_EFFECTS = ("geometric", "joint_compliance", "thermal_expansion", "gear_periodic")
 
@@ -180,16 +170,15 @@ def identify_base(kind: str, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray) ->
 
 def file_base(path: str | Path, spec: FeatureSpec, frame: np.ndarray) -> PhysicsBase:
     """A calibrated or gap model file as a base, checked against the nominal; ``frame`` is the
-    ``T_W_0`` of the data's base frame (the file's ``T_W_0`` is against the same tracker)."""
+    ``T_W_0`` of the data's base frame (the file's ``T_W_0`` is against the same tracker).
+    Effects that need signals a model's features do not carry (backlash: the approach
+    direction; tracker drift: time) are left out and named in the base's note, so the file
+    ``robocal gap --report`` writes serves as it is."""
     model = load_model_file(path)
     check_same_robot(model.description, spec.description, f"base file {path}")
-    unusable = [e.name for e in model.effects if e.name not in _FEATURE_EFFECTS]
-    if unusable:
-        raise ConfigError(
-            f"base file {path}: effect(s) {', '.join(unusable)} need signals a model's features "
-            f"do not carry; a base can use {', '.join(_FEATURE_EFFECTS)}"
-        )
-    for entry in model.effects:
+    effects = tuple(e for e in model.effects if e.name in _FEATURE_EFFECTS)
+    left_out = [e.name for e in model.effects if e.name not in _FEATURE_EFFECTS]
+    for entry in effects:
         needs = [
             n for n in entry.options.get("sensors", []) if temperature_column(n) not in spec.names
         ]
@@ -201,8 +190,11 @@ def file_base(path: str | Path, spec: FeatureSpec, frame: np.ndarray) -> Physics
         kind="file",
         description=model.description,
         T_0_B=invert(frame) @ model.T_W_0,
-        effects=model.effects,
-        note=str(path),
+        effects=effects,
+        note=f"{path}; left out {', '.join(left_out)}: they need signals a model's features "
+        "do not carry"
+        if left_out
+        else str(path),
     )
 
 
@@ -214,13 +206,14 @@ def reidentify_frames(
     offsets: bool = False,
     *,
     residual: np.ndarray | None = None,
-    prior_m: float | None = FRAME_PRIOR_M,
+    prior_m: float | None = FRAME_PRIOR_MM * 1e-3,
 ) -> PhysicsBase:
     """The base with ``T_0_B``, its tool and (``offsets``) the joint offsets re-identified from
     ``X, Y`` (a new day's first points), the rest of its kinematics and its effects held: the
     tracker moved, the tool was re-mounted, an encoder was re-referenced. Only the parameters
     these points identify are fitted (pivoted QR, as in calibration), as a MAP estimate under a
-    prior centred on the base's own frames (:data:`FRAME_PRIOR_M`; ``None``: least squares).
+    prior centred on the base's own frames (``prior_m``, m: :data:`~learner.config.FRAME_PRIOR_MM`
+    by default; ``None``: least squares).
     ``residual`` (N, 6), what the network adds to the base at ``X``, is taken off the labels
     first, so the frames are fitted to what the base should explain. A nominal base becomes a
     ``frames`` base. Offsets are off by default: from a new day's first 10-100 UR10 points

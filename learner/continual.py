@@ -240,7 +240,8 @@ class ContinualLearner:
         :data:`MIN_DAY_POINTS` are there; until then the scale the model came with stands."""
         X, Y = self._check(X, Y)
         spec, residual = self.model.spec, self.model.residual(X)
-        self.rebase(reidentify_frames(self.base, spec, X, Y, residual=residual))
+        prior_m = self.cfg.frame_prior_mm * 1e-3
+        self.rebase(reidentify_frames(self.base, spec, X, Y, residual=residual, prior_m=prior_m))
         self._cal_x, self._cal_y = self._cal_x[:0], self._cal_y[:0]
         self.trained.residual_gain = self.model.weigh_residual(X, Y)
         self.day_scale = self.model.interval_scale / np.exp(self.aci_log_scale)

@@ -88,6 +88,7 @@ _CONTINUAL_OPTIONS = {
     "init": "points of model 0",
     "strategy": None,
     "epochs_per_update": None,
+    "frame_prior_mm": "with --from: how far the base's frames may move on the first points (mm)",
 }
 
 
@@ -170,6 +171,8 @@ def _emit_learned(
         "base": {"kind": result.model.base_kind, "note": "" if base is None else base.note},
         "test": test,
     }
+    if out["base"]["note"]:
+        text += f"\nbase: {out['base']['note']}"
     if test:
         text += "\n" + _report_text("test", test)
     emit(out, as_json, text)

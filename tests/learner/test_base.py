@@ -219,3 +219,57 @@ def test_snapshots_from_before_the_typed_fields_read_them_from_the_note(points):
         old = snapshot_from_bytes(save(load(data), metadata={"robocal": json.dumps(meta)})).base
         assert old.on_nominal == base.on_nominal
         np.testing.assert_allclose(old.condition, base.condition, rtol=1e-2)
+
+
+def test_a_gap_model_file_serves_as_a_base_without_the_effects_features_cannot_drive(
+    points, tmp_path
+):
+    """``robocal gap`` writes backlash and tracker drift too; a base evaluates what the features
+    drive and names what it left out."""
+    from kinematics.gap.candidates import make_effect
+    from kinematics.gap.model_file import EffectEntry, ModelFile, model_to_toml
+
+    desc = points.spec.description
+
+    def entry(name: str, options: dict, value: float) -> EffectEntry:
+        names = make_effect(name, options).parameter_names(desc)
+        return EffectEntry(
+            name=name, options=options, parameters=dict.fromkeys(names, value), std={}
+        )
+
+    effects = (
+        entry("backlash", {"sign_from": "approach"}, 1e-4),
+        entry("joint_compliance", {"balancer": []}, 1e-5),
+    )
+    path = tmp_path / "gap_model.toml"
+    path.write_text(model_to_toml(ModelFile(description=desc, T_W_0=np.eye(4), effects=effects)))
+    base = make_base(str(path), points.spec, points.X, points.Y)
+    assert [e.name for e in base.effects] == ["joint_compliance"]
+    assert "left out backlash" in base.note
+    bent = base.error(points.spec, points.X[:20], RobotModel(desc))
+    assert np.abs(bent[:, :3]).max() > 1e-5  # the compliance bends the arm under gravity
+
+
+def test_the_carry_moves_the_frames_as_far_as_its_prior_lets_them(points):
+    """``ContinualConfig.frame_prior_mm``: a tight prior keeps the source's frames, a loose one
+    follows a tracker that moved by mm."""
+    p = points
+    base = identify_base("geometric", p.spec, p.X[:200], p.Y[:200])
+    model = ErrorModel.create(
+        p.spec, ModelConfig(hidden_layers=1, neurons=16), TrainConfig(max_epochs=5), 0, base=base
+    )
+    model.fit(p.X[:200], p.Y[:200])
+    Y2 = _moved(p, _frame([2e-3, -1e-3, 0.5e-3], 2e-3), _frame([0, 1e-3, 0], 1e-3))
+    nominal = RobotModel(p.spec.description)
+    after = {}
+    for prior_mm in (1e-4, 10.0):
+        learner = ContinualLearner(
+            snapshot_from_bytes(snapshot_to_bytes(model)), ContinualConfig(frame_prior_mm=prior_mm)
+        )
+        learner.carry(p.X[:30], Y2[:30])
+        after[prior_mm] = _position_mm(Y2[200:] - learner.base.error(p.spec, p.X[200:], nominal))
+    stale = _position_mm(Y2[200:] - base.error(p.spec, p.X[200:], nominal))
+    assert after[1e-4] > 0.8 * stale > 0.8
+    assert after[10.0] < 0.3 * stale
+    with pytest.raises(ConfigError, match="frame_prior_mm"):
+        ContinualConfig(frame_prior_mm=0.0)

@@ -89,13 +89,15 @@ def test_continual_goes_on_from_a_model_with_its_memory(data_file, tmp_path, cap
     assert main(argv) == 0
     assert (tmp_path / "day1.state.safetensors").is_file()  # the memory travels beside it
     capsys.readouterr()
-    out = _continual(
-        capsys, data_file, second, "--from", str(first), "--test-fraction", "0", "--init", "40"
-    )
+    carry = ["--from", str(first), "--test-fraction", "0", "--init", "40"]
+    out = _continual(capsys, data_file, second, *carry, "--frame-prior-mm", "0.3")
     assert out["updates"] == 4  # all 160 points streamed, no first model trained again
     assert out["base"]["kind"] == "geometric" and out["test"] == {}
     model = load_snapshot(second)
     assert model.base_kind == "geometric" and model.is_fitted
+    argv = ["continual", "--data", str(data_file), "--out", str(second), *carry]
+    assert main([*argv, "--frame-prior-mm", "0"]) == 2
+    assert "frame_prior_mm must be > 0" in capsys.readouterr().err
 
 
 def test_a_model_or_base_of_another_robot_stops_with_one_line(data_file, tmp_path, capsys):
