@@ -11,7 +11,9 @@ as untrusted (epistemic std above its limit) with the
 90 % coverage on the trusted ones. Both directions, ``--seeds`` seeds. ``--cache DIR`` keeps
 the trained source models (by series, base, seed and epochs) for the next run. ``--base-a`` /
 ``--base-b`` are the source models' bases (a kind or a model file, e.g. ``robocal gap``'s),
-``--frame-prior-mm`` the carry's frame prior (``ContinualConfig.frame_prior_mm``).
+``--frame-prior-mm`` / ``--moved-frame-prior-mm`` the carry's frame priors (equal: no choice;
+``ContinualConfig``); ``frames_moved`` is the share of seeds whose carry took the frames as
+moved.
 
     .venv/bin/python bench/learner_transfer.py --a /tmp/a.parquet --b /tmp/b.parquet --seeds 0 1 2
 """
@@ -26,7 +28,13 @@ import numpy as np
 import torch
 
 from kinematics.dataset import read_dataset
-from learner.config import DEFAULT_BASE, FRAME_PRIOR_MM, ContinualConfig, TrainConfig
+from learner.config import (
+    DEFAULT_BASE,
+    FRAME_PRIOR_MM,
+    MOVED_FRAME_PRIOR_MM,
+    ContinualConfig,
+    TrainConfig,
+)
 from learner.continual import load_learner
 from learner.metrics import accuracy_report
 from learner.workflow import prepare, train_on_dataset
@@ -40,7 +48,7 @@ STEPS = (0, 10, 25, 50, 100)
 
 
 def transfer(
-    source: str, target: str, seed: int, epochs: int, folder: Path, base: str, prior_mm: float
+    source: str, target: str, seed: int, epochs: int, folder: Path, base: str, priors: tuple
 ) -> dict:
     """One source model (trained on ``base``, cached in ``folder``) carried to ``target``."""
     tag = "" if base == DEFAULT_BASE else f"_{Path(base).parent.name}_{Path(base).stem}"
@@ -55,7 +63,7 @@ def transfer(
         )
         write_trained(result, model_path)
         model, source_mm = result.model, result.test.mean_mm
-    cfg = ContinualConfig(seed=seed, frame_prior_mm=prior_mm)
+    cfg = ContinualConfig(seed=seed, frame_prior_mm=priors[0], moved_frame_prior_mm=priors[1])
     p_src = prepare(src, test_fraction=0.1, seed=seed, spec=model.spec)
     epi_src = np.sqrt(model.predict(p_src.X[p_src.test]).epistemic()[:, :3]).mean()
     p = prepare(read_dataset(target), test_fraction=0.1, seed=0, spec=model.spec)
@@ -71,6 +79,7 @@ def transfer(
             learner.update(X[:k], Y[:k])
         else:
             frames_only, gain = float("nan"), 1.0
+        frames_moved = float("frames moved" in learner.base.note)
         r = accuracy_report(learner.model, Xte, Yte)
         ev = learner.model.predict(Xte)
         epi_std = np.sqrt(ev.epistemic()[:, :3])
@@ -83,6 +92,7 @@ def transfer(
                 "k": k,
                 "frames_only_mm": frames_only,
                 "residual_gain": gain,
+                "frames_moved": frames_moved,
                 "mean_mm": r.mean_mm,
                 "p95_mm": r.p95_mm,
                 "max_mm": r.max_mm,
@@ -107,20 +117,19 @@ def main() -> None:
     ap.add_argument("--cache", help="folder keeping the trained source models between runs")
     ap.add_argument("--base-a", default=DEFAULT_BASE, help="A's base: a kind or a model file")
     ap.add_argument("--base-b", default=DEFAULT_BASE, help="B's base: a kind or a model file")
-    ap.add_argument(
-        "--frame-prior-mm", type=float, default=FRAME_PRIOR_MM, help="the carry's frame prior"
-    )
+    ap.add_argument("--frame-prior-mm", type=float, default=FRAME_PRIOR_MM)
+    ap.add_argument("--moved-frame-prior-mm", type=float, default=MOVED_FRAME_PRIOR_MM)
     args = ap.parse_args()
     torch.set_num_threads(1)
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(args.cache or tmp)
         folder.mkdir(parents=True, exist_ok=True)
+        priors = args.frame_prior_mm, args.moved_frame_prior_mm
         directions = {"A->B": (args.a, args.b, args.base_a), "B->A": (args.b, args.a, args.base_b)}
         for name, (src, dst, base) in directions.items():
             runs = [
-                transfer(src, dst, s, args.max_epochs, folder, base, args.frame_prior_mm)
-                for s in args.seeds
+                transfer(src, dst, s, args.max_epochs, folder, base, priors) for s in args.seeds
             ]
             steps = [
                 {

@@ -242,6 +242,44 @@ def reidentify_frames(
     return replace(base, kind=kind, description=calibrated, T_0_B=T_0_B)
 
 
+#: How many times the first points' residual (position RMS under the loose prior's frames) the
+#: frames must have moved (position RMS of the change over those points) before the carry
+#: takes them as moved: a new day's local error fakes a move about its own size (UR10 A <-> B,
+#: 10-100 points: 1.0-5.1 x), a tracker moved by 2 mm shows 34-73 x (simulated cell).
+MOVE_EVIDENCE = 10.0
+
+
+def carried_frames(
+    base: PhysicsBase,
+    spec: FeatureSpec,
+    X: np.ndarray,
+    Y: np.ndarray,
+    residual: np.ndarray,
+    prior_m: float,
+    moved_prior_m: float,
+) -> PhysicsBase:
+    """A carried base's frames from a new day's first points ``X, Y`` (``residual``: what the
+    network adds there): held near the old ones (``prior_m``) unless the points show that the
+    tracker or tool moved: frames fitted under the loose ``moved_prior_m`` move the predicted
+    positions by more than :data:`MOVE_EVIDENCE` times what they leave unexplained. The base's
+    note says which and why."""
+    nominal = RobotModel(spec.description)
+    before = base.error(spec, X, nominal)[:, :3]
+    moved = reidentify_frames(base, spec, X, Y, residual=residual, prior_m=moved_prior_m)
+    after = moved.error(spec, X, nominal)[:, :3]
+    shift = float(np.sqrt(np.mean(np.sum((after - before) ** 2, axis=1))))
+    left = np.asarray(Y, dtype=float)[:, :3] - residual[:, :3] - after
+    rms = float(np.sqrt(np.mean(np.sum(left**2, axis=1))))
+    if shift <= MOVE_EVIDENCE * rms:
+        moved = reidentify_frames(base, spec, X, Y, residual=residual, prior_m=prior_m)
+    what = "moved" if shift > MOVE_EVIDENCE * rms else "held"
+    note = (
+        f"frames {what} on {len(X)} new points (a free move of {1e3 * shift:.3f} mm against "
+        f"{1e3 * rms:.3f} mm left)"
+    )
+    return replace(moved, note=f"{base.note}; {note}" if base.note else note)
+
+
 def make_base(
     base: str, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray, frame: np.ndarray | None = None
 ) -> PhysicsBase:
@@ -291,6 +329,7 @@ __all__ = [
     "BASE_KINDS",
     "DEFAULT_BASE",
     "PhysicsBase",
+    "carried_frames",
     "check_same_robot",
     "data_frame",
     "identify_base",

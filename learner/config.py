@@ -25,20 +25,21 @@ ENCODINGS = ("kinematic", "minmax")
 BASE_KINDS = ("nominal", "geometric", "auto")
 #: The base that measured best on real data (BENCHMARKS.md, "Real UR10").
 DEFAULT_BASE = "geometric"
-#: Prior of a re-identified frame parameter (:func:`reidentify_frames`): a Gaussian whose std
-#: moves the tool pose by this much (mm, RMS over the new points; rotations on a 1 m lever),
-#: weighed against what a free fit of the frames leaves (``s_p``), so the source's frames count
-#: as about ``(s_p / FRAME_PRIOR_MM)²`` points. A new day's first points, often from one region,
-#: carry the robot's local error (0.3-0.5 mm on a UR10), which a free fit folds into frame
-#: rotations that tilt the far workspace; where the carried network explains the rest,
-#: ``s_p`` is small and the frames move freely (a re-mounted tool). UR10, geometric base alone,
-#: frames from the first 10 / 100 points: A -> B 0.82 / 0.59 mm free, 0.56 / 0.53 mm held;
-#: B -> A 1.17 / 0.73 mm free, 0.78 / 0.59 mm held (BENCHMARKS.md, "Carried into a new day").
-#: A base that explains the local error itself wants a looser prior: A's gap model as the base,
-#: full model after 100 of B's points, 0.39 mm at 0.3 against 0.65 mm at 0.03 (BENCHMARKS.md,
-#: "A gap model as the carried base"); the first points alone cannot tell which, so it is a
-#: setting (``ContinualConfig.frame_prior_mm``).
+#: Prior of a re-identified frame parameter (:func:`learner.base.reidentify_frames`): a
+#: Gaussian whose std moves the tool pose by this much (mm, RMS over the new points; rotations
+#: on a 1 m lever), weighed against what a free fit of the frames leaves (``s_p``), so the
+#: source's frames count as about ``(s_p / FRAME_PRIOR_MM)²`` points. A new day's first points, often from one region,
+#: carry the robot's local error (0.3-0.5 mm on a UR10), which a loose prior folds into frame
+#: rotations that tilt the far workspace: UR10 A -> B with a geometric base, after 100 points,
+#: 0.53 mm held at 0.03 against 0.67 mm at 0.3 (B -> A 0.55 / 0.57 mm).
 FRAME_PRIOR_MM = 0.03
+#: The prior once the first points show that the tracker or tool moved
+#: (:func:`learner.base.carried_frames`): held at 0.03 mm, a tracker moved by 2 mm is 1.87 mm
+#: off after 10 points and 0.25 mm after 100 in the simulated cell, at 0.3 mm 0.12 / 0.09 mm.
+#: A base that explains the local error itself may take it from the start (A's gap model as
+#: the base: UR10 A -> B 0.39 mm at 0.3 against 0.65 mm at 0.03). BENCHMARKS.md, "Frame prior
+#: and base".
+MOVED_FRAME_PRIOR_MM = 0.3
 
 
 def _check(cond: bool, msg: str) -> None:
@@ -199,7 +200,8 @@ class ContinualConfig:
     (:mod:`learner.base`; a model that has one keeps it); ``auto`` takes the nominal when they
     are too few to identify it.
     ``frame_prior_mm`` is how far a carried base's frames may move on a new day's first
-    points (:meth:`ContinualLearner.carry`, :func:`learner.base.reidentify_frames`).
+    points, ``moved_frame_prior_mm`` how far when those points show that the tracker or tool
+    moved (:meth:`ContinualLearner.carry`, :func:`learner.base.carried_frames`).
     ``aci_rate`` is the step of the adaptive conformal interval scale per new point outside
     (or inside) the ``aci_level`` interval, in log units (0 turns it off). ``quarantine``
     keeps poisoned points out and withholds updates that worsen the held-out error (a table
@@ -219,6 +221,7 @@ class ContinualConfig:
     aci_rate: float = 0.05
     aci_level: float = 0.9
     frame_prior_mm: float = FRAME_PRIOR_MM
+    moved_frame_prior_mm: float = MOVED_FRAME_PRIOR_MM
     seed: int = 0
     quarantine: QuarantineConfig = field(default_factory=QuarantineConfig)
 
@@ -254,8 +257,7 @@ class ContinualConfig:
             0.0 < self.aci_level < 1.0,
             f"continual.aci_level must be in (0, 1), got {self.aci_level}",
         )
-        _check(
-            self.frame_prior_mm > 0.0,
-            f"continual.frame_prior_mm must be > 0, got {self.frame_prior_mm}",
-        )
+        for name in ("frame_prior_mm", "moved_frame_prior_mm"):
+            value = getattr(self, name)
+            _check(value > 0.0, f"continual.{name} must be > 0, got {value}")
         _check(isinstance(self.seed, int), f"continual.seed must be an int, got {self.seed!r}")

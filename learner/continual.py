@@ -38,7 +38,7 @@ import torch
 
 from kinematics.errors import DatasetError, SnapshotError
 from kinematics.model import RobotModel
-from learner.base import PhysicsBase, identify_base, nominal_base, reidentify_frames
+from learner.base import PhysicsBase, carried_frames, identify_base, nominal_base
 from learner.config import ContinualConfig
 from learner.continual_base import due, memory_base
 from learner.continual_records import Memory, UpdateMetrics
@@ -233,15 +233,15 @@ class ContinualLearner:
 
     def carry(self, X: np.ndarray, Y: np.ndarray) -> float:
         """Start a new day or cell from its first points ``X, Y``: re-identify the base's frames
-        (the network's residual taken off, :func:`learner.base.reidentify_frames`), empty the
+        (the network's residual taken off, :func:`learner.base.carried_frames`), empty the
         held-out set (it was another day's) and fit the carried network's gain on these points,
         which it never saw (:meth:`ErrorModel.weigh_residual`); returns the gain. The gain and
         the interval scale are fitted on the day's held-out points after each update once
         :data:`MIN_DAY_POINTS` are there; until then the scale the model came with stands."""
         X, Y = self._check(X, Y)
         spec, residual = self.model.spec, self.model.residual(X)
-        prior_m = self.cfg.frame_prior_mm * 1e-3
-        self.rebase(reidentify_frames(self.base, spec, X, Y, residual=residual, prior_m=prior_m))
+        priors = self.cfg.frame_prior_mm * 1e-3, self.cfg.moved_frame_prior_mm * 1e-3
+        self.rebase(carried_frames(self.base, spec, X, Y, residual, *priors))
         self._cal_x, self._cal_y = self._cal_x[:0], self._cal_y[:0]
         self.trained.residual_gain = self.model.weigh_residual(X, Y)
         self.day_scale = self.model.interval_scale / np.exp(self.aci_log_scale)

@@ -89,6 +89,7 @@ _CONTINUAL_OPTIONS = {
     "strategy": None,
     "epochs_per_update": None,
     "frame_prior_mm": "with --from: how far the base's frames may move on the first points (mm)",
+    "moved_frame_prior_mm": "with --from: the same once those points show a moved tracker/tool",
 }
 
 
