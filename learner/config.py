@@ -28,10 +28,11 @@ DEFAULT_BASE = "geometric"
 #: Prior of a re-identified frame parameter (:func:`learner.base.reidentify_frames`): a
 #: Gaussian whose std moves the tool pose by this much (mm, RMS over the new points; rotations
 #: on a 1 m lever), weighed against what a free fit of the frames leaves (``s_p``), so the
-#: source's frames count as about ``(s_p / FRAME_PRIOR_MM)²`` points. A new day's first points, often from one region,
-#: carry the robot's local error (0.3-0.5 mm on a UR10), which a loose prior folds into frame
-#: rotations that tilt the far workspace: UR10 A -> B with a geometric base, after 100 points,
-#: 0.53 mm held at 0.03 against 0.67 mm at 0.3 (B -> A 0.55 / 0.57 mm).
+#: source's frames count as about ``(s_p / FRAME_PRIOR_MM)²`` points. A new day's first
+#: points, often from one region, carry the robot's local error (0.3-0.5 mm on a UR10), which
+#: a loose prior folds into frame rotations that tilt the far workspace: UR10 A -> B with a
+#: geometric base, after 100 points, 0.53 mm at 0.03 against 0.67 mm at 0.3 (B -> A 0.55 /
+#: 0.57 mm).
 FRAME_PRIOR_MM = 0.03
 #: The prior once the first points show that the tracker or tool moved
 #: (:func:`learner.base.carried_frames`): held at 0.03 mm, a tracker moved by 2 mm is 1.87 mm
