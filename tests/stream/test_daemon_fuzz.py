@@ -217,7 +217,9 @@ def bad_message(draw, templates, models):
     name = draw(st.sampled_from(sorted(template)))
     template[name] = draw(EXTREME | JSON)
     if topic == "batches" and draw(st.booleans()):  # a point inside the batch mutated
-        point = dict(template["points"][0]) if isinstance(template["points"], list) else {}
+        points = template["points"]  # itself replaced above when the draw named it
+        first = points[0] if isinstance(points, list) and points else None
+        point = dict(first) if isinstance(first, dict) else {}
         point[draw(st.sampled_from(sorted(point) or ["q"]))] = draw(EXTREME | JSON)
         template["points"] = [point]
     return topic, json.dumps(template).encode()

@@ -99,8 +99,11 @@ def test_stage_takes_garbage_and_closes_cleanly(name, sessions, tmp_path):
         streams = [str(s.key_expr) for s in stage._subs if "*" not in str(s.key_expr)]
         if not streams:  # a wildcard subscriber (the recorder) takes any stream of the cell
             streams = [key(CELL, "r9", "joints")]
-        for k in streams:
-            b.put(k, GARBAGE)
+        for k in streams:  # each put once the stage's subscriber is known, or it may be lost
+            pub = b.declare_publisher(k)
+            assert _wait(lambda pub=pub: pub.matching_status.matching), f"no subscriber on {k}"
+            pub.put(GARBAGE)
+            pub.undeclare()
 
         def accounted() -> int:
             stage.count_worker_drops()
