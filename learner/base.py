@@ -244,9 +244,11 @@ def reidentify_frames(
 
 #: How many times the first points' residual (position RMS under the loose prior's frames) the
 #: frames must have moved (position RMS of the change over those points) before the carry
-#: takes them as moved: a new day's local error fakes a move about its own size (UR10 A <-> B,
-#: 10-100 points: 1.0-5.1 x), a tracker moved by 2 mm shows 34-73 x (simulated cell).
-MOVE_EVIDENCE = 10.0
+#: takes them as moved. A new day's local error fakes a move about its own size (UR10 A <-> B,
+#: 10-100 points: 1.0-5.1 x); a tracker moved by 2 mm shows 34-73 x on the simulated cell,
+#: 116-131 x on random arms whose base explains the rest, 5.3-15 x on random arms that leave
+#: 0.3 mm. Missing a move costs mm, a false one about 0.1 mm (BENCHMARKS.md).
+MOVE_EVIDENCE = 5.0
 
 
 def carried_frames(
