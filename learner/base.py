@@ -259,12 +259,12 @@ def carried_frames(
     residual: np.ndarray,
     prior_m: float,
     moved_prior_m: float,
-) -> PhysicsBase:
+) -> tuple[PhysicsBase, bool]:
     """A carried base's frames from a new day's first points ``X, Y`` (``residual``: what the
-    network adds there): held near the old ones (``prior_m``) unless the points show that the
-    tracker or tool moved: frames fitted under the loose ``moved_prior_m`` move the predicted
-    positions by more than :data:`MOVE_EVIDENCE` times what they leave unexplained. The base's
-    note says which and why."""
+    network adds there) and whether they moved: held near the old ones (``prior_m``) unless
+    the points show that the tracker or tool moved: frames fitted under the loose
+    ``moved_prior_m`` move the predicted positions by more than :data:`MOVE_EVIDENCE` times
+    what they leave unexplained. The base's note says which and why."""
     nominal = RobotModel(spec.description)
     before = base.error(spec, X, nominal)[:, :3]
     moved = reidentify_frames(base, spec, X, Y, residual=residual, prior_m=moved_prior_m)
@@ -272,14 +272,14 @@ def carried_frames(
     shift = float(np.sqrt(np.mean(np.sum((after - before) ** 2, axis=1))))
     left = np.asarray(Y, dtype=float)[:, :3] - residual[:, :3] - after
     rms = float(np.sqrt(np.mean(np.sum(left**2, axis=1))))
-    if shift <= MOVE_EVIDENCE * rms:
+    is_moved = shift > MOVE_EVIDENCE * rms
+    if not is_moved:
         moved = reidentify_frames(base, spec, X, Y, residual=residual, prior_m=prior_m)
-    what = "moved" if shift > MOVE_EVIDENCE * rms else "held"
     note = (
-        f"frames {what} on {len(X)} new points (a free move of {1e3 * shift:.3f} mm against "
-        f"{1e3 * rms:.3f} mm left)"
+        f"frames {'moved' if is_moved else 'held'} on {len(X)} new points (a free move of "
+        f"{1e3 * shift:.3f} mm against {1e3 * rms:.3f} mm left)"
     )
-    return replace(moved, note=f"{base.note}; {note}" if base.note else note)
+    return replace(moved, note=f"{base.note}; {note}" if base.note else note), is_moved
 
 
 def make_base(

@@ -73,16 +73,13 @@ class ContinualLearner:
         self.strategy = replay_strategy(cfg.strategy)
         self.rng = np.random.default_rng(cfg.seed)
         n_f = model.spec.n_features
-        self._mem_x = np.empty((0, n_f))
-        self._mem_y = np.empty((0, 6))
-        self._cal_x = np.empty((0, n_f))
-        self._cal_y = np.empty((0, 6))
+        self._mem_x, self._mem_y = np.empty((0, n_f)), np.empty((0, 6))
+        self._cal_x, self._cal_y = np.empty((0, n_f)), np.empty((0, 6))
         self.n_seen = 0
         self.version = 0
         self.quarantine = QuarantineState.empty()
         self.n_withheld = 0
-        #: The interval scale a carried model came with (without ACI), kept while its new day
-        #: is young; None for a learner that was not carried (:meth:`carry`).
+        #: A carried model's interval scale (no ACI) while its day is young (:meth:`carry`).
         self.day_scale: np.ndarray | None = None
         if model.is_fitted:  # a trained model (a snapshot) goes on learning with an empty memory
             self.trained = _copy(model)
@@ -237,14 +234,19 @@ class ContinualLearner:
         held-out set (it was another day's) and fit the carried network's gain on these points,
         which it never saw (:meth:`ErrorModel.weigh_residual`); returns the gain. The gain and
         the interval scale are fitted on the day's held-out points after each update once
-        :data:`MIN_DAY_POINTS` are there; until then the scale the model came with stands."""
+        :data:`MIN_DAY_POINTS` are there; until then the model's scale stands (if frames moved,
+        no narrower than these points show)."""
         X, Y = self._check(X, Y)
         spec, residual = self.model.spec, self.model.residual(X)
         priors = self.cfg.frame_prior_mm * 1e-3, self.cfg.moved_frame_prior_mm * 1e-3
-        self.rebase(carried_frames(self.base, spec, X, Y, residual, *priors))
+        base, moved = carried_frames(self.base, spec, X, Y, residual, *priors)
+        self.rebase(base)
         self._cal_x, self._cal_y = self._cal_x[:0], self._cal_y[:0]
         self.trained.residual_gain = self.model.weigh_residual(X, Y)
-        self.day_scale = self.model.interval_scale / np.exp(self.aci_log_scale)
+        scale = self.model.interval_scale.copy()
+        if moved:  # the cell changed: intervals no narrower than its first points show
+            self.model.interval_scale = scale = np.maximum(scale, self.model.calibrate(X, Y))
+        self.day_scale = scale / np.exp(self.aci_log_scale)
         return self.trained.residual_gain
 
     def rebase(self, base: PhysicsBase) -> None:

@@ -269,6 +269,8 @@ def test_the_carry_follows_a_moved_tracker_and_holds_the_frames_of_an_unmoved_on
         )
         learner.carry(p.X[:30], Y[:30])
         error = _position_mm(Y[200:] - learner.base.error(p.spec, p.X[200:], nominal))
+        widened = learner.day_scale / model.interval_scale
+        assert np.all(widened >= 1.0 - 1e-12)  # a moved cell's intervals never narrow
         return learner.base.note, error
 
     stale = _position_mm(Y2[200:] - base.error(p.spec, p.X[200:], nominal))
