@@ -273,7 +273,7 @@ def carried_frames(
     left = np.asarray(Y, dtype=float)[:, :3] - residual[:, :3] - after
     rms = float(np.sqrt(np.mean(np.sum(left**2, axis=1))))
     is_moved = shift > MOVE_EVIDENCE * rms
-    if not is_moved:
+    if not is_moved and prior_m != moved_prior_m:
         moved = reidentify_frames(base, spec, X, Y, residual=residual, prior_m=prior_m)
     note = (
         f"frames {'moved' if is_moved else 'held'} on {len(X)} new points (a free move of "
