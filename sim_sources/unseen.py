@@ -8,8 +8,11 @@ only the description and dataset *formats* are shared.
 
 Each :class:`UnseenSpec` draws (seeded) an arm of 5-7 revolute axes, with or without link
 masses and secondary encoders, 1-16 thermometers with random names, a campaign of random poses
-over hours of warm-up, and at most one hidden effect of DESIGN.md's vocabulary scaled so that
-its mean position contribution is ``magnitude`` times the noise floor.
+over hours of warm-up, and at most one hidden effect of DESIGN.md's vocabulary (or one of
+:data:`UNNAMED`, which no product model names) scaled so that its mean position contribution is
+``magnitude`` times the noise floor. ``also`` adds further
+effects, each scaled alone to its own magnitude (a realistic robot: an uncalibrated geometry
+plus a smaller non-geometric effect).
 
 >>> ds, desc, truth = unseen_campaign(UnseenSpec(seed=3, n_points=20))
 >>> 5 <= desc.n_joints <= 7, len(ds), truth["hidden"]
@@ -32,6 +35,9 @@ from kinematics.transforms import transform_from_xyz_rpy, xyz_quat_from_transfor
 
 #: The effect names a hidden effect is drawn from: the registry of kinematics.effects.
 VOCABULARY = tuple(EFFECTS)
+#: Effects outside the vocabulary, which no model of the product names: a joint's error driven
+#: by another joint's angle (cross-coupled transmissions, cable and hose forces).
+UNNAMED = ("joint_coupling",)
 #: Effects that need a signal a robot may lack: link masses for gravity torques.
 NEEDS_MASSES = ("joint_compliance",)
 G0_M_S2 = 9.81
@@ -40,7 +46,8 @@ G0_M_S2 = 9.81
 @dataclass(frozen=True, kw_only=True)
 class UnseenSpec:
     """One random robot and campaign. ``n_axes``/``n_thermometers``/``with_*`` of None are drawn
-    from the seed; ``hidden`` is a vocabulary effect or None; ``magnitude`` in noise floors."""
+    from the seed; ``hidden`` is a vocabulary effect or None; ``magnitude`` in noise floors;
+    ``also`` further ``(effect, magnitude)`` pairs on top of ``hidden``."""
 
     seed: int
     n_points: int = 400
@@ -52,10 +59,14 @@ class UnseenSpec:
     with_secondary: bool | None = None
     noise_m: float = 25e-6
     joint_span_deg: float | None = None
+    also: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self) -> None:
-        if self.hidden is not None and self.hidden not in VOCABULARY:
-            raise ValueError(f"hidden must be one of {VOCABULARY} or None, got {self.hidden!r}")
+        for name in (self.hidden, *(name for name, _ in self.also)):
+            if name is not None and name not in VOCABULARY + UNNAMED:
+                raise ValueError(
+                    f"hidden must be one of {VOCABULARY + UNNAMED} or None, got {name!r}"
+                )
         if self.n_axes is not None and not 5 <= self.n_axes <= 7:
             raise ValueError(f"n_axes must be in 5..7, got {self.n_axes}")
 
@@ -188,6 +199,11 @@ def _hidden(name, rng, desc, q, t, temps, approach):
         amp, phase = rng.uniform(0.2, 1.0, n) * 1e-4, rng.uniform(0, 6.3, n)
         dq = amp * np.sin(order * q + phase)
         info["order"] = order
+    elif name == "joint_coupling":
+        other = (np.arange(n) + rng.integers(1, n, n)) % n  # never the joint itself
+        amp, phase = rng.uniform(0.2, 1.0, n) * 1e-4, rng.uniform(0, 6.3, n)
+        dq = amp * np.sin(q[:, other] + phase)
+        info["coupled_to"] = (other + 1).tolist()
     elif name == "tracker_drift":
         hours = (t / 3600.0)[:, None]
         drift = hours * np.r_[rng.normal(0, 1e-4, 3), rng.normal(0, 2e-5, 3)]
@@ -213,7 +229,7 @@ def unseen_campaign(spec: UnseenSpec) -> tuple[Dataset, RobotDescription, dict]:
     rng = np.random.default_rng(spec.seed)
     n = spec.n_axes or int(rng.integers(5, 8))
     masses = bool(rng.random() < 0.5) if spec.with_masses is None else spec.with_masses
-    masses = masses or spec.hidden in NEEDS_MASSES
+    masses = masses or any(e in NEEDS_MASSES for e in (spec.hidden, *(e for e, _ in spec.also)))
     secondary = bool(rng.random() < 0.5) if spec.with_secondary is None else spec.with_secondary
     k = spec.n_thermometers or int(rng.integers(1, 17))
     desc = random_robot(rng, n, masses)
@@ -233,14 +249,18 @@ def unseen_campaign(spec: UnseenSpec) -> tuple[Dataset, RobotDescription, dict]:
     nominal = _poses(desc, q, zero[0], zero[1], zero[2], zero[2])
     info: dict = {}
     dq, ddh, base, tool = zero[0], zero[1], zero[2], zero[2]
-    if spec.hidden is not None:
-        dq, ddh, base, tool, info = _hidden(spec.hidden, rng, desc, q, t, temps, approach)
-        moved = _poses(desc, q, dq, ddh, base, tool)
+    deflection = zero[0]  # what secondary encoders see: the compliance part of dq
+    effects = ([(spec.hidden, spec.magnitude)] if spec.hidden else []) + list(spec.also)
+    for name, magnitude in effects:
+        e_dq, e_ddh, e_base, e_tool, e_info = _hidden(name, rng, desc, q, t, temps, approach)
+        moved = _poses(desc, q, e_dq, e_ddh, e_base, e_tool)
         mean = float(np.linalg.norm(moved[:, :3, 3] - nominal[:, :3, 3], axis=1).mean())
         noise_floor = spec.noise_m * np.sqrt(8 / np.pi)  # E|N(0, s^2 I3)|
-        s = spec.magnitude * noise_floor / mean
-        dq, ddh = s * dq, s * ddh
-        base, tool = _scaled(base, s), _scaled(tool, s)
+        s = magnitude * noise_floor / mean
+        dq, ddh = dq + s * e_dq, ddh + s * e_ddh
+        deflection = deflection + (s * e_dq if name == "joint_compliance" else 0)
+        base, tool = base @ _scaled(e_base, s), tool @ _scaled(e_tool, s)
+        info = e_info | info
     true = _poses(desc, q, dq, ddh, base, tool)
     noise = rng.normal(0, spec.noise_m, (N, 3))
     measured = true.copy()
@@ -248,7 +268,7 @@ def unseen_campaign(spec: UnseenSpec) -> tuple[Dataset, RobotDescription, dict]:
     measured[:, :3, :3] = _small_rotations(rng, N, 5e-6) @ measured[:, :3, :3]
     table = {"t": t, **{f"q{i + 1}": q[:, i] for i in range(n)}}
     if secondary:
-        qs = q + (dq if spec.hidden == "joint_compliance" else 0) + rng.normal(0, 2e-6, q.shape)
+        qs = q + deflection + rng.normal(0, 2e-6, q.shape)
         table |= {f"qs{i + 1}": qs[:, i] for i in range(n)}
     table |= {temperature_column(name): temps[:, c] for c, name in enumerate(names)}
     xyz, quat = xyz_quat_from_transform(measured)
@@ -256,7 +276,8 @@ def unseen_campaign(spec: UnseenSpec) -> tuple[Dataset, RobotDescription, dict]:
     table |= dict(zip(("qx", "qy", "qz", "qw"), quat.T, strict=True))
     floor = float(np.linalg.norm(noise, axis=1).mean())
     meta = DatasetMeta(robot=desc.name, frame="base", noise_floor_m=floor)
-    truth = {"hidden": spec.hidden, "magnitude": spec.magnitude, "n_axes": n, "masses": masses}
+    truth = {"hidden": spec.hidden, "magnitude": spec.magnitude, "also": list(spec.also)}
+    truth |= {"n_axes": n, "masses": masses}
     truth |= {"secondary": secondary, "thermometers": names, **info}
     return Dataset(pd.DataFrame(table), meta), desc, truth
 
@@ -298,6 +319,7 @@ def write_unseen(spec: UnseenSpec, out_dir: str | Path) -> tuple[Path, RobotDesc
 
 
 __all__ = [
+    "UNNAMED",
     "VOCABULARY",
     "UnseenSpec",
     "frames",

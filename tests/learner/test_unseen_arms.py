@@ -1,0 +1,57 @@
+"""The error model on random arms nobody tuned it for (small version of
+``bench/learner_unseen.py``): an uncalibrated geometry plus one effect, in the vocabulary or
+outside it."""
+
+import numpy as np
+import pytest
+
+from kinematics.dataset import read_dataset
+from kinematics.model import RobotModel
+from learner.base import data_frame, make_base
+from learner.config import ModelConfig, TrainConfig
+from learner.metrics import accuracy_report
+from learner.model import ErrorModel
+from learner.workflow import prepare
+from sim_sources.unseen import UnseenSpec, unseen_campaign, write_unseen
+
+
+def _mean_mm(E: np.ndarray) -> float:
+    return float(np.linalg.norm(E[:, :3], axis=1).mean() * 1e3)
+
+
+def test_each_effect_is_scaled_alone_and_secondary_encoders_see_only_compliance():
+    spec = UnseenSpec(seed=11, n_points=300, hidden="gear_periodic", with_secondary=True)
+    alone, _, _ = unseen_campaign(spec)
+    both, _, truth = unseen_campaign(
+        UnseenSpec(**{**spec.__dict__, "also": (("joint_compliance", 6.0),)})
+    )
+    assert truth["also"] == [("joint_compliance", 6.0)] and truth["masses"]
+
+    def deflection(ds):
+        return float(np.abs(ds.deflection()).max())
+
+    assert deflection(alone) < 1e-5  # encoder noise (2 µrad): a gear error is not a deflection
+    assert deflection(both) > 3 * deflection(alone)
+    with pytest.raises(ValueError, match="hidden must be one of"):
+        UnseenSpec(seed=0, also=(("wobble", 1.0),))
+
+
+@pytest.mark.parametrize("hidden", ["joint_compliance", "joint_coupling"])
+def test_base_plus_residual_beats_calibration_on_a_random_arm(hidden, tmp_path):
+    spec = UnseenSpec(
+        seed=7, n_points=800, hidden=hidden, magnitude=8.0, also=(("geometric", 20.0),)
+    )
+    path, desc, _ = write_unseen(spec, tmp_path)
+    ds = read_dataset(path)
+    p = prepare(ds, test_fraction=0.25, seed=0)
+    tr, te = np.sort(p.train), p.test
+    base = make_base("geometric", p.spec, p.X[tr], p.Y[tr], data_frame(ds))
+    calibrated = _mean_mm(p.Y[te] - base.error(p.spec, p.X[te], RobotModel(desc)))
+    model = ErrorModel.create(
+        p.spec, ModelConfig(), TrainConfig(max_epochs=150, seed=0), 0, p.robot, base
+    )
+    model.fit(p.X[tr], p.Y[tr])
+    r = accuracy_report(model, p.X[te], p.Y[te])
+    assert _mean_mm(p.Y[te]) > 0.5  # the uncalibrated arm
+    assert r.mean_mm < 0.8 * calibrated  # the network learns what calibration leaves (0.60-0.66)
+    assert 0.8 <= r.coverage_90 <= 0.97
