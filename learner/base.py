@@ -8,13 +8,16 @@ the model still predicts DESIGN.md's label, the pose error against the nominal. 
 
 - ``nominal``: the nominal description; the error model is the learner alone;
 - ``geometric``: a classical geometric calibration (``robocal calibrate``) of the training points;
+- ``gap``: ``robocal gap``'s model of the training points (the geometric calibration plus the
+  effects it names that the features can drive), in one step;
 - ``auto``: the geometric calibration of the first ``identify_points`` points, or the nominal
   when those points cannot identify it or identify it only ill-conditioned (condition number
   above :data:`AUTO_MAX_CONDITION`: poses from one region; the snapshot says why);
 - a path: a calibrated model file (``robocal calibrate --out``) or ``robocal gap``'s model file.
 
 On real UR10 series the geometric base with a residual network is the most accurate of these
-(BENCHMARKS.md, "Real UR10"), so it is the default.
+(BENCHMARKS.md, "Real UR10": ``gap`` is better on Series B, worse on A), so it is the default;
+on random arms whose effects the gap workflow names, ``gap`` reaches the noise floor.
 
 >>> from kinematics.description import load_description
 >>> from learner.features import feature_spec
@@ -50,6 +53,7 @@ from kinematics.description import RobotDescription
 from kinematics.effects import Conditions, Effect, Perturbation, perturbed_poses
 from kinematics.errors import ConfigError, IdentifiabilityError
 from kinematics.gap.model_file import EffectEntry, ModelFile, load_model_file
+from kinematics.gap.workflow import run_gap
 from kinematics.identification.conditions import observations_from_dataset
 from kinematics.identification.fitting import fit_effects, jacobian
 from kinematics.model import RobotModel
@@ -145,6 +149,8 @@ def identify_base(kind: str, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray) ->
         raise ConfigError(f"base must be one of {BASE_KINDS} or a model file, got {kind!r}")
     if kind == "nominal":
         return nominal_base(spec.description)
+    if kind == "gap":
+        return gap_base(spec, X, Y)
     n = len(X) if kind == "geometric" else min(len(X), IDENTIFY_POINTS)
     try:
         result = calibrate(spec.description, measured_dataset(spec, X[:n], Y[:n]))
@@ -168,33 +174,50 @@ def identify_base(kind: str, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray) ->
     )
 
 
+def gap_base(spec: FeatureSpec, X: np.ndarray, Y: np.ndarray) -> PhysicsBase:
+    """``robocal gap``'s model of the points ``X, Y`` (labels against the nominal) as a base:
+    what ``robocal gap`` then ``--base`` its model file would give, in one step."""
+    result = run_gap(spec.description, measured_dataset(spec, X, Y))
+    named = [e.effect for e in result.named if e.identified]
+    before, after = result.stages[0].heldout.mean_mm, result.stages[-1].heldout.mean_mm
+    note = f"gap model of {len(X)} points: named {', '.join(named) or 'nothing'}; held-out "
+    note += f"{before:.4f} -> {after:.4f} mm"
+    model = result.model_file()
+    return _model_base("gap", model, model.T_W_0, note)
+
+
 def file_base(path: str | Path, spec: FeatureSpec, frame: np.ndarray) -> PhysicsBase:
     """A calibrated or gap model file as a base, checked against the nominal; ``frame`` is the
-    ``T_W_0`` of the data's base frame (the file's ``T_W_0`` is against the same tracker).
-    Effects that need signals a model's features do not carry (backlash: the approach
-    direction; tracker drift: time) are left out and named in the base's note, so the file
-    ``robocal gap --report`` writes serves as it is."""
+    ``T_W_0`` of the data's base frame (the file's ``T_W_0`` is against the same tracker), so
+    the file ``robocal gap --report`` writes serves as it is."""
     model = load_model_file(path)
     check_same_robot(model.description, spec.description, f"base file {path}")
-    effects = tuple(e for e in model.effects if e.name in _FEATURE_EFFECTS)
-    left_out = [e.name for e in model.effects if e.name not in _FEATURE_EFFECTS]
-    for entry in effects:
+    for entry in model.effects:
         needs = [
             n for n in entry.options.get("sensors", []) if temperature_column(n) not in spec.names
         ]
-        if needs:
+        if needs and entry.name in _FEATURE_EFFECTS:
             raise ConfigError(
                 f"base file {path}: effect {entry.name!r} needs {temperature_column(needs[0])}"
             )
+    return _model_base("file", model, invert(frame) @ model.T_W_0, str(path))
+
+
+def _model_base(kind: str, model: ModelFile, T_0_B: np.ndarray, note: str) -> PhysicsBase:
+    """A base of a model file's description and effects. Effects that need signals a model's
+    features do not carry (backlash: the approach direction; tracker drift: time) are left out
+    and named in the note."""
+    left_out = [e.name for e in model.effects if e.name not in _FEATURE_EFFECTS]
+    if left_out:
+        note += (
+            f"; left out {', '.join(left_out)}: they need signals a model's features do not carry"
+        )
     return PhysicsBase(
-        kind="file",
+        kind=kind,
         description=model.description,
-        T_0_B=invert(frame) @ model.T_W_0,
-        effects=effects,
-        note=f"{path}; left out {', '.join(left_out)}: they need signals a model's features "
-        "do not carry"
-        if left_out
-        else str(path),
+        T_0_B=T_0_B,
+        effects=tuple(e for e in model.effects if e.name in _FEATURE_EFFECTS),
+        note=note,
     )
 
 
@@ -334,6 +357,7 @@ __all__ = [
     "carried_frames",
     "check_same_robot",
     "data_frame",
+    "gap_base",
     "identify_base",
     "make_base",
     "nominal_base",

@@ -22,7 +22,7 @@ ACTIVATIONS = ("elu", "relu", "gelu")
 STRATEGIES = ("max_error", "naive", "reservoir", "full")
 ENCODINGS = ("kinematic", "minmax")
 #: Physics bases the learner can identify itself (:mod:`learner.base`; a file is a path).
-BASE_KINDS = ("nominal", "geometric", "auto")
+BASE_KINDS = ("nominal", "geometric", "auto", "gap")
 #: The base that measured best on real data (BENCHMARKS.md, "Real UR10").
 DEFAULT_BASE = "geometric"
 #: Prior of a re-identified frame parameter (:func:`learner.base.reidentify_frames`): a

@@ -7,10 +7,11 @@ import pytest
 
 from kinematics.dataset import read_dataset
 from kinematics.model import RobotModel
-from learner.base import data_frame, make_base
+from learner.base import data_frame, identify_base, make_base
 from learner.config import ModelConfig, TrainConfig
 from learner.metrics import accuracy_report
 from learner.model import ErrorModel
+from learner.snapshot import snapshot_from_bytes, snapshot_to_bytes
 from learner.workflow import prepare
 from sim_sources.unseen import UnseenSpec, unseen_campaign, write_unseen
 
@@ -55,3 +56,26 @@ def test_base_plus_residual_beats_calibration_on_a_random_arm(hidden, tmp_path):
     assert _mean_mm(p.Y[te]) > 0.5  # the uncalibrated arm
     assert r.mean_mm < 0.8 * calibrated  # the network learns what calibration leaves (0.60-0.66)
     assert 0.8 <= r.coverage_90 <= 0.97
+
+
+def test_a_gap_base_takes_the_named_effect_and_its_snapshot_reproduces_it(tmp_path):
+    spec = UnseenSpec(
+        seed=5, n_points=600, hidden="gear_periodic", magnitude=8.0, also=(("geometric", 20.0),)
+    )
+    path, desc, _ = write_unseen(spec, tmp_path)
+    p = prepare(read_dataset(path), test_fraction=0.25, seed=0)
+    tr, te = np.sort(p.train), p.test
+    base = identify_base("gap", p.spec, p.X[tr], p.Y[tr])
+    assert base.kind == "gap" and "named gear_periodic" in base.note
+    assert [e.name for e in base.effects] == ["gear_periodic"]
+    geometric = identify_base("geometric", p.spec, p.X[tr], p.Y[tr])
+    nominal = RobotModel(desc)
+    left = _mean_mm(p.Y[te] - base.error(p.spec, p.X[te], nominal))
+    assert left < 0.06 < 0.2 < _mean_mm(p.Y[te] - geometric.error(p.spec, p.X[te], nominal))
+    model = ErrorModel.create(
+        p.spec, ModelConfig(), TrainConfig(max_epochs=30, seed=0), 0, p.robot, base
+    )
+    model.fit(p.X[tr], p.Y[tr])
+    back = snapshot_from_bytes(snapshot_to_bytes(model))
+    assert back.base.kind == "gap" and back.base.note == base.note
+    assert np.allclose(back.predict(p.X[te]).gamma, model.predict(p.X[te]).gamma, atol=1e-9)

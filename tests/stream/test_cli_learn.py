@@ -7,6 +7,7 @@ import torch
 
 from kinematics.dataset import write_dataset
 from learner.snapshot import load_snapshot
+from sim_sources.unseen import UnseenSpec, write_unseen
 from stream.cli import main
 from tests.learner.conftest import make_dataset
 
@@ -44,6 +45,23 @@ def test_train_then_evaluate(data_file, tmp_path, capsys):
     assert report["n"] == 160 and report["mean_mm"] > 0
     assert main(["evaluate", "--model", str(model), "--data", str(data_file)]) == 0
     assert "90% interval covers" in capsys.readouterr().out
+
+
+def test_train_on_a_gap_base_in_one_step(data_file, tmp_path, capsys):
+    spec = UnseenSpec(seed=4, n_points=300, hidden="joint_compliance", also=(("geometric", 10),))
+    data, _, _ = write_unseen(spec, tmp_path / "arm")
+    model = tmp_path / "g.safetensors"
+    argv = ["train", "--data", str(data), "--out", str(model), "--max-epochs", "3"]
+    assert main([*argv, "--base", "gap", "--json"]) == 0
+    out = _json(capsys)
+    assert out["base"]["kind"] == "gap" and "named joint_compliance" in out["base"]["note"]
+    assert load_snapshot(model).base.kind == "gap"
+    assert main(["evaluate", "--model", str(model), "--data", str(data), "--json"]) == 0
+    assert _json(capsys)["mean_mm"] < out["test"]["mean_mm"] * 1.5  # the same base, all points
+    # a dataset whose thermometers are not the ones the description maps: one line, exit 2
+    argv = ["train", "--data", str(data_file), "--out", str(model), "--base", "gap"]
+    assert main(argv) == 2
+    assert "temperature channel(s)" in capsys.readouterr().err
 
 
 def test_continual_writes_model_and_curve(data_file, tmp_path, capsys):
