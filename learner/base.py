@@ -179,9 +179,11 @@ def gap_base(spec: FeatureSpec, X: np.ndarray, Y: np.ndarray) -> PhysicsBase:
     what ``robocal gap`` then ``--base`` its model file would give, in one step."""
     result = run_gap(spec.description, measured_dataset(spec, X, Y))
     named = [e.effect for e in result.named if e.identified]
+    shapes = [e.effect for e in result.named if not e.identified]
     before, after = result.stages[0].heldout.mean_mm, result.stages[-1].heldout.mean_mm
-    note = f"gap model of {len(X)} points: named {', '.join(named) or 'nothing'}; held-out "
-    note += f"{before:.4f} -> {after:.4f} mm"
+    note = f"gap model of {len(X)} points: named {', '.join(named) or 'nothing'}"
+    note += f", unnamed corrections of {', '.join(shapes)} shape" if shapes else ""
+    note += f"; held-out {before:.4f} -> {after:.4f} mm"
     model = result.model_file()
     return _model_base("gap", model, model.T_W_0, note)
 
