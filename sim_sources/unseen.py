@@ -10,9 +10,8 @@ Each :class:`UnseenSpec` draws (seeded) an arm of 5-7 revolute axes, with or wit
 masses and secondary encoders, 1-16 thermometers with random names, a campaign of random poses
 over hours of warm-up, and at most one hidden effect of DESIGN.md's vocabulary (or one of
 :data:`UNNAMED`, which no product model names) scaled so that its mean position contribution is
-``magnitude`` times the noise floor. ``also`` adds further
-effects, each scaled alone to its own magnitude (a realistic robot: an uncalibrated geometry
-plus a smaller non-geometric effect).
+``magnitude`` times the noise floor. ``also`` adds further effects, each scaled alone to its
+own magnitude (a realistic robot: an uncalibrated geometry plus a smaller non-geometric effect).
 
 >>> ds, desc, truth = unseen_campaign(UnseenSpec(seed=3, n_points=20))
 >>> 5 <= desc.n_joints <= 7, len(ds), truth["hidden"]
