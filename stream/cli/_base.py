@@ -88,11 +88,15 @@ def _jsonable(value: Any) -> Any:
     raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
 
 
-def add_base_argument(parser: argparse.ArgumentParser, default: str = DEFAULT_BASE) -> None:
+def add_base_argument(
+    parser: argparse.ArgumentParser,
+    default: str = DEFAULT_BASE,
+    kinds: tuple[str, ...] = BASE_KINDS,
+) -> None:
     """``--base``: the physics base whose residual the network learns."""
     parser.add_argument(
         "--base",
         default=default,
-        help=f"physics base the network learns the residual of: {', '.join(BASE_KINDS)} or a "
+        help=f"physics base the network learns the residual of: {', '.join(kinds)} or a "
         f"model file from `robocal calibrate`/`robocal gap` (.toml); default {default}",
     )

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from learner.config import STRATEGIES, ContinualConfig, TrainConfig
+from learner.config import STRATEGIES, STREAM_BASE_KINDS, ContinualConfig, TrainConfig
 from stream.cli._base import Command, add_base_argument, add_data_argument, add_json_flag, emit
 
 if TYPE_CHECKING:
@@ -117,7 +117,7 @@ class Continual(Command):
             help="go on from this model (with its replay memory when its .state.safetensors is "
             "beside it); its frames are re-identified from the first --init points",
         )
-        add_base_argument(parser, ContinualConfig().base)
+        add_base_argument(parser, ContinualConfig().base, STREAM_BASE_KINDS)
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:

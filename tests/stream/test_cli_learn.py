@@ -62,6 +62,10 @@ def test_train_on_a_gap_base_in_one_step(data_file, tmp_path, capsys):
     argv = ["train", "--data", str(data_file), "--out", str(model), "--base", "gap"]
     assert main(argv) == 2
     assert "temperature channel(s)" in capsys.readouterr().err
+    # a stream cannot identify a gap model from its first points: one line, exit 2
+    argv = ["continual", "--data", str(data), "--out", str(model), "--base", "gap"]
+    assert main(argv) == 2
+    assert "`robocal gap`'s model file" in capsys.readouterr().err.splitlines()[-1]
 
 
 def test_continual_writes_model_and_curve(data_file, tmp_path, capsys):
