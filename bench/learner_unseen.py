@@ -41,7 +41,7 @@ ONE_STEP = ("geometric_calibration", "learner_only", "base_plus_residual", "plai
 
 
 def arm(seed: int, n_points: int, geometric: float, effect: float, epochs: int) -> dict:
-    """One random arm's campaign and the four models' test statistics on it."""
+    """One random arm's campaign and the models' test statistics on it."""
     hidden = EFFECTS[seed % len(EFFECTS)]
     spec = UnseenSpec(
         seed=seed,

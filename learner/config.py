@@ -61,9 +61,12 @@ def _check_counts(cfg: object, section: str, names: tuple[str, ...]) -> None:
         )
 
 
-def _check_choice(section: str, name: str, value: object, choices: tuple[str, ...]) -> None:
-    """``value`` is one of ``choices`` (else ``<section>.<name>`` ConfigError)."""
-    _check(value in choices, f"{section}.{name} must be one of {choices}, got {value!r}")
+def _check_choice(
+    section: str, name: str, value: object, choices: tuple[str, ...], why: str = ""
+) -> None:
+    """``value`` is one of ``choices`` (else ``<section>.<name>`` ConfigError, ``why`` after)."""
+    why = f" ({why})" if why else ""
+    _check(value in choices, f"{section}.{name} must be one of {choices}, got {value!r}{why}")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -252,10 +255,12 @@ class ContinualConfig:
         _check(
             0.0 < self.average <= 1.0, f"continual.average must be in (0, 1], got {self.average}"
         )
-        _check(
-            self.base in STREAM_BASE_KINDS,
-            f"continual.base must be one of {STREAM_BASE_KINDS}, got {self.base!r} (a gap model "
-            "needs every training point at once: pass `robocal gap`'s model file)",
+        _check_choice(
+            "continual",
+            "base",
+            self.base,
+            STREAM_BASE_KINDS,
+            "a gap model needs every training point at once: pass `robocal gap`'s model file",
         )
         _check(
             0.0 <= self.aci_rate <= 1.0,

@@ -2,6 +2,8 @@
 ``bench/learner_unseen.py``): an uncalibrated geometry plus one effect, in the vocabulary or
 outside it."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -23,9 +25,7 @@ def _mean_mm(E: np.ndarray) -> float:
 def test_each_effect_is_scaled_alone_and_secondary_encoders_see_only_compliance():
     spec = UnseenSpec(seed=11, n_points=300, hidden="gear_periodic", with_secondary=True)
     alone, _, _ = unseen_campaign(spec)
-    both, _, truth = unseen_campaign(
-        UnseenSpec(**{**spec.__dict__, "also": (("joint_compliance", 6.0),)})
-    )
+    both, _, truth = unseen_campaign(replace(spec, also=(("joint_compliance", 6.0),)))
     assert truth["also"] == [("joint_compliance", 6.0)] and truth["masses"]
 
     def deflection(ds):
