@@ -7,13 +7,13 @@ points (MAP, the network's residual taken off) and the carried network's gain fi
 one update on them, and the new series' held-out test error (10 %, seed 0, drawn over the
 whole series) with 90 % coverage and how much wider the epistemic spread is there than on the
 source's own test points, and the share of test points the compensation service would flag
-as untrusted (epistemic std above its limit) with the
-90 % coverage on the trusted ones. Both directions, ``--seeds`` seeds. ``--cache DIR`` keeps
-the trained source models (by series, base, seed and epochs) for the next run. ``--base-a`` /
-``--base-b`` are the source models' bases (a kind or a model file, e.g. ``robocal gap``'s),
-``--frame-prior-mm`` / ``--moved-frame-prior-mm`` the carry's frame priors (equal: no choice;
-``ContinualConfig``); ``frames_moved`` is the share of seeds whose carry took the frames as
-moved.
+as untrusted (epistemic std above its limit, or a joint past the angles the model was trained
+on, ``learner.envelope``: both shares, and either) with the 90 % coverage on the trusted
+ones. Both directions, ``--seeds`` seeds. ``--cache DIR`` keeps the trained source models
+(by series, base, seed and epochs) for the next run. ``--base-a`` / ``--base-b`` are the
+source models' bases (a kind or a model file, e.g. ``robocal gap``'s), ``--frame-prior-mm`` /
+``--moved-frame-prior-mm`` the carry's frame priors (equal: no choice; ``ContinualConfig``);
+``frames_moved`` is the share of seeds whose carry took the frames as moved.
 
     .venv/bin/python bench/learner_transfer.py --a /tmp/a.parquet --b /tmp/b.parquet --seeds 0 1 2
 """
@@ -36,7 +36,7 @@ from learner.config import (
     TrainConfig,
 )
 from learner.continual import load_learner
-from learner.metrics import accuracy_report
+from learner.metrics import accuracy_report, past_envelope
 from learner.workflow import prepare, train_on_dataset
 from stream.compensation import CompensationConfig
 from stream.reports.learner import write_trained
@@ -86,7 +86,9 @@ def transfer(
         epi = epi_std.mean()
         lo, hi = ev.interval(0.9)
         inside = (Yte[:, :3] >= lo[:, :3]) & (Yte[:, :3] <= hi[:, :3])
-        untrusted = epi_std.max(axis=1) * 1e3 > EPISTEMIC_LIMIT_MM
+        over_limit = epi_std.max(axis=1) * 1e3 > EPISTEMIC_LIMIT_MM
+        past = past_envelope(learner.model, Xte)
+        untrusted = over_limit | past
         rows.append(
             {
                 "k": k,
@@ -98,6 +100,8 @@ def transfer(
                 "max_mm": r.max_mm,
                 "coverage_90": r.coverage_90,
                 "epistemic_ratio": float(epi / epi_src),
+                "over_epistemic_limit_share": float(over_limit.mean()),
+                "outside_envelope_share": float(past.mean()),
                 "untrusted_share": float(untrusted.mean()),
                 "coverage_90_trusted": float(inside[~untrusted].mean())
                 if (~untrusted).any()

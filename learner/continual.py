@@ -205,8 +205,7 @@ class ContinualLearner:
 
     def _publish_gated(self) -> tuple[bool, float]:
         """Publish the update unless the gate withholds it (the held-out error grew beyond the
-        tolerance): then the last published model stays. Whether it was withheld, and the
-        published model's held-out position error (mm)."""
+        tolerance; the last published model stays). Withheld?, and held-out error (mm)."""
         before = holdout_mm(self.model, self._cal_x, self._cal_y)
         last = _copy(self.model)
         self._publish()
@@ -270,8 +269,8 @@ class ContinualLearner:
         self.aci_log_scale = np.clip(self.aci_log_scale + self.cfg.aci_rate * miss, -3.0, 3.0)
 
     def _publish(self) -> None:
-        """Move the published weights towards the trained ones by ``average``; calibrate the
-        result on the held-out set (or take the trained model's scale while it is too small);
+        """Move the published weights towards the trained ones by ``average`` (the envelope
+        follows); calibrate on the held-out set (the trained model's scale while it is small);
         after a :meth:`carry`, re-weigh the network on the day's held-out points first, or keep
         the scale the model came with while they are fewer than :data:`MIN_DAY_POINTS`."""
         with torch.no_grad():
@@ -281,6 +280,7 @@ class ContinualLearner:
                 strict=True,
             ):
                 published.lerp_(trained, self.cfg.average)
+        self.model.envelope = self.trained.envelope
         carried = self.day_scale is not None
         if carried and len(self._cal_x) < MIN_DAY_POINTS:  # a young day: the scale it came with
             self.model.interval_scale = self.day_scale.copy()

@@ -13,6 +13,7 @@ import numpy as np
 
 from kinematics.error_stats import ErrorStats
 from kinematics.transforms import ARCMIN_PER_RAD
+from learner.envelope import MARGIN_DEG, joint_count, outside
 from learner.model import ErrorModel
 
 LEVELS = (0.68, 0.90, 0.95)
@@ -81,3 +82,11 @@ def accuracy_report(
         interval_width_90_mm=float((hi - lo)[:, :3].mean() * 1e3),
         nll=float(nll_mm.mean()),
     )
+
+
+def past_envelope(model: ErrorModel, X: np.ndarray, margin_deg: float = MARGIN_DEG) -> np.ndarray:
+    """Per row of raw features ``X``: does a joint lie past the angles ``model`` was trained on
+    (:mod:`learner.envelope`, what compensation marks ``envelope``)? All False without one."""
+    if model.envelope is None:
+        return np.zeros(len(X), dtype=bool)
+    return outside(model.envelope, np.asarray(X)[:, : joint_count(model.spec.names)], margin_deg)

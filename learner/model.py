@@ -33,6 +33,7 @@ from learner.base import PhysicsBase
 from learner.config import ModelConfig, TrainConfig
 from learner.encoding import input_encoder, n_inputs
 from learner.ensemble import EvidentialEnsemble
+from learner.envelope import joint_count, widen
 from learner.evidential import Evidential, combine_members, evidential_loss
 from learner.features import FeatureSpec
 
@@ -94,6 +95,7 @@ class ErrorModel:
         interval_scale: np.ndarray | None = None,
         base: PhysicsBase | None = None,
         residual_gain: float = 1.0,
+        envelope: np.ndarray | None = None,
     ) -> None:
         self.spec = spec
         self.base = base
@@ -107,6 +109,7 @@ class ErrorModel:
             np.ones(N_LABELS) if interval_scale is None else np.asarray(interval_scale, dtype=float)
         )
         self.residual_gain = float(residual_gain)
+        self.envelope = envelope  # the joint angles trained on (learner.envelope)
         self.net = EvidentialEnsemble(
             n_inputs=n_inputs(spec, model_cfg.encoding),
             hidden_layers=model_cfg.hidden_layers,
@@ -197,12 +200,10 @@ class ErrorModel:
 
     def predict(self, X: np.ndarray) -> Evidential:
         """NIG prediction in label units (m, rad) for raw SI features ``(N, F)``: the base's
-        error plus the network's residual, the latter weighed against its prior (the spread of
-        the training residuals) by its epistemic variance and scaled by :attr:`residual_gain`
-        (1 unless a new day's points said how far a carried network still holds,
-        :meth:`weigh_residual`). Where the network extrapolates (another day's poses, 10-200x
-        its in-distribution epistemic spread on UR10), the prediction falls back to the base
-        instead of growing with the network's guess."""
+        error plus the network's residual, weighed against its prior (the training residuals'
+        spread) by its epistemic variance and scaled by :attr:`residual_gain` (1 unless a new
+        day's points said how far a carried network holds, :meth:`weigh_residual`). Where the
+        network extrapolates, the prediction falls back to the base."""
         gamma, nu, alpha, beta = (t.double().numpy() for t in self.predict_scaled(self.scale_x(X)))
         mean = np.zeros(N_LABELS) if self.label_mean is None else self.label_mean
         std = np.ones(N_LABELS) if self.label_std is None else self.label_std
@@ -223,10 +224,9 @@ class ErrorModel:
 
     def weigh_residual(self, X: np.ndarray, Y: np.ndarray) -> float:
         """Fit :attr:`residual_gain` in [0, 1] to points the network never trained on (least
-        squares of the labels less the base, all six components in standardised units); returns
-        it. A network carried to another day or cell learned its residual elsewhere: on UR10 A's
-        network at B's poses the gain is 0-0.1, and leaving it at 1 cost 0.07-0.45 mm (after
-        100 points, BENCHMARKS.md)."""
+        squares of the labels less the base, standardised units); returns it. A network carried
+        to another cell learned its residual elsewhere: UR10 A's network on B's poses has gain
+        0-0.1; gain 1 cost 0.07-0.45 mm after 100 points (BENCHMARKS.md)."""
         Y = _check_labels(Y)
         self.residual_gain = 1.0
         if not self.is_fitted:
@@ -240,11 +240,9 @@ class ErrorModel:
 
     def calibrate(self, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
         """Fit the per-component factor on the Student-t scale that minimises the predictive
-        NLL of held-out ``(X, Y)`` (``beta`` is multiplied by its square); returns it.
-
-        Networks trained on few points are over-confident on new ones; this one scalar per
-        component, fitted on data the weights never saw, makes the intervals honest.
-        """
+        NLL of held-out ``(X, Y)`` (``beta`` is multiplied by its square); returns it. Networks
+        trained on few points are over-confident on new ones; this one scalar per component,
+        fitted on data the weights never saw, makes the intervals honest."""
         Y = _check_labels(Y)
         self.interval_scale = np.ones(N_LABELS)
         ev = self.predict(X)
@@ -274,7 +272,8 @@ class ErrorModel:
         val_fraction: float | None = None,
         lr: float | None = None,
     ) -> TrainReport:
-        """Train (warm-started from the current weights) with Adam and the evidential loss.
+        """Train (warm-started from the current weights) with Adam and the evidential loss;
+        the training points' joint angles widen :attr:`envelope`.
 
         Without ``X_val`` a ``val_fraction`` of ``X`` is held out for the lr schedule and early
         stopping; the best weights by validation MSE are kept and the interval scale is
@@ -302,6 +301,7 @@ class ErrorModel:
                 Y[order[:n_val]],
             )
         R = Y - self.base_error(X)  # the network learns what the base leaves
+        self.envelope = widen(self.envelope, X[:, : joint_count(self.spec.names)])
         self._ensure_label_scaler(R)
         Xs, Ys = self.scale_x(X), self.scale_y(R)
         val = None

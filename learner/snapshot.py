@@ -5,7 +5,9 @@ its description (TOML text, for the kinematic input encoding), feature names, mo
 configs, seed and training metrics; the tensors hold the network weights, the fixed scalers and
 the sensor transform ``T_6_S`` (float64, so predictions after a reload are bit-identical).
 The physics base travels too (kind, note, description TOML and effects in the JSON; its frame
-``T_0_B`` and tool as float64 tensors), so a reloaded model predicts what it predicted. Version
+``T_0_B`` and tool as float64 tensors), so a reloaded model predicts what it predicted; so do
+the joint angles it was trained on (``joint_envelope``, :mod:`learner.envelope`; absent in
+snapshots written before it existed, which compensation then does not check). Version
 1 snapshots (before input encodings and members existed) load as ``encoding = "minmax"``, one
 member; snapshots without a base load on the nominal.
 
@@ -62,6 +64,8 @@ def snapshot_to_bytes(model: ErrorModel, extra_meta: dict | None = None) -> byte
     desc = model.spec.description
     if desc is not None:
         tensors["sensor_tool"] = torch.as_tensor(desc.tool)
+    if model.envelope is not None:
+        tensors["joint_envelope"] = torch.as_tensor(np.asarray(model.envelope, dtype=np.uint8))
     base = model.base
     if base is not None:
         tensors["base_T_0_B"] = torch.as_tensor(np.array(base.T_0_B, dtype=np.float64))
@@ -144,6 +148,9 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
             interval_scale=tensors["interval_scale"].numpy(),
             base=_base_from_meta(meta.get("base"), tensors),
             residual_gain=float(meta.get("residual_gain", 1.0)),
+            envelope=tensors["joint_envelope"].numpy().astype(bool)
+            if "joint_envelope" in tensors
+            else None,
         )
         state = {k[len("net.") :]: v for k, v in tensors.items() if k.startswith("net.")}
         model.net.load_state_dict(state, strict=True)

@@ -7,7 +7,9 @@ with the pinocchio tool Jacobian (DH joint variables, mapped to controller angle
 J2/J3 coupling); the damping ``d`` grows when a step does not help, which keeps corrections
 small near singular poses.
 An answer is marked untrusted when the epistemic standard deviation of a position component
-exceeds ``epistemic_limit_mm``: the model has not seen data like this.
+exceeds ``epistemic_limit_mm`` (the model has not seen data like this) and, in
+:mod:`stream.compensation_guard`, when a joint lies more than ``envelope_margin_deg`` outside
+the angles the model was trained on (:mod:`learner.envelope`).
 
 Near a singular pose the damped steps cannot reach the target within ``max_iterations``: a
 millimetre there takes a large joint motion. What happens then is the configured ``policy``
@@ -34,6 +36,7 @@ import numpy as np
 from kinematics.errors import ConfigError, DatasetError
 from kinematics.model import RobotModel
 from kinematics.transforms import apply_error, pose_error, transform_from_xyz_quat
+from learner.envelope import MARGIN_DEG
 from learner.features import features
 from learner.model import ErrorModel
 from wire import JOINT_LIMIT_RAD, RejectedMessageError, check_finite
@@ -44,12 +47,14 @@ POLICIES = ("refuse", "flag", "best_effort")
 
 @dataclass(frozen=True, kw_only=True)
 class CompensationConfig:
-    """Trust limit (mm), interval level, the corrected-command iteration (limits, the initial
+    """Trust limits (epistemic std, mm; how far past the trained joint angles, deg), interval
+    level, the corrected-command iteration (limits, the initial
     damping ``d``, the largest joint step per iteration, rad) and the policy for commands it
     cannot land: :data:`POLICIES`, with best effort's largest joint motion from the command
     (rad, any joint), its iterations and its step (rad)."""
 
     epistemic_limit_mm: float = 0.5
+    envelope_margin_deg: float = MARGIN_DEG
     level: float = 0.9
     max_iterations: int = 50
     tolerance_m: float = 1e-7
@@ -84,6 +89,10 @@ class CompensationConfig:
         if not (math.isfinite(self.epistemic_limit_mm) and self.epistemic_limit_mm > 0):
             raise ConfigError(
                 f"compensation.epistemic_limit_mm must be > 0, got {self.epistemic_limit_mm}"
+            )
+        if not (math.isfinite(self.envelope_margin_deg) and self.envelope_margin_deg >= 0):
+            raise ConfigError(
+                f"compensation.envelope_margin_deg must be >= 0, got {self.envelope_margin_deg}"
             )
         if not 0 < self.level < 1:
             raise ConfigError(f"compensation.level must be in (0, 1), got {self.level}")

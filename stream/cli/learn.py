@@ -192,10 +192,20 @@ class Evaluate(Command):
     def take_action(self, args: argparse.Namespace) -> int:
         from kinematics.dataset import read_dataset
         from learner.snapshot import load_snapshot
-        from learner.workflow import evaluate_on_dataset
+        from learner.workflow import envelope_on_dataset, evaluate_on_dataset
 
-        report = evaluate_on_dataset(load_snapshot(args.model), read_dataset(args.data)).to_dict()
-        emit(report, args.json, _report_text(f"{args.data} ({report['n']} points)", report))
+        model, ds = load_snapshot(args.model), read_dataset(args.data)
+        report = evaluate_on_dataset(model, ds).to_dict()
+        report["envelope"] = envelope = envelope_on_dataset(model, ds)
+        text = _report_text(f"{args.data} ({report['n']} points)", report)
+        if envelope["n_outside"]:
+            text += (
+                f"\n{100 * envelope['outside_share']:.1f}% of the poses lie past the joint angles"
+                " the model was trained on (compensation does not trust them)"
+            )
+            if envelope["inside"] is not None:
+                text += "; " + _report_text("the others", envelope["inside"])
+        emit(report, args.json, text)
         return 0
 
 

@@ -43,8 +43,29 @@ def test_train_then_evaluate(data_file, tmp_path, capsys):
     assert main(["evaluate", "--model", str(model), "--data", str(data_file), "--json"]) == 0
     report = _json(capsys)
     assert report["n"] == 160 and report["mean_mm"] > 0
+    assert report["envelope"]["n_outside"] == 0  # its own data: every pose was trained on
+    assert report["envelope"]["inside"]["n"] == 160
     assert main(["evaluate", "--model", str(model), "--data", str(data_file)]) == 0
     assert "90% interval covers" in capsys.readouterr().out
+
+
+def test_evaluate_names_the_poses_past_the_angles_trained_on(tmp_path, capsys):
+    """A model of one half of q1's range on the other half: evaluate says how much of it lies
+    there and how the rest fares."""
+    ds = make_dataset(240, q1_range=(-2.0, 0.0))
+    write_dataset(ds, tmp_path / "left.parquet")
+    write_dataset(make_dataset(120, seed=3, q1_range=(-2.0, 2.0)), tmp_path / "all.parquet")
+    model = tmp_path / "m.safetensors"
+    argv = ["train", "--data", str(tmp_path / "left.parquet"), "--out", str(model)]
+    assert main([*argv, "--max-epochs", "3", "--json"]) == 0
+    capsys.readouterr()
+    argv = ["evaluate", "--model", str(model), "--data", str(tmp_path / "all.parquet")]
+    assert main([*argv, "--json"]) == 0
+    envelope = _json(capsys)["envelope"]
+    assert 0.35 < envelope["outside_share"] < 0.55  # q1 > 0 (+5°): half the poses
+    assert envelope["inside"]["n"] == 120 - envelope["n_outside"]
+    assert main(argv) == 0
+    assert "of the poses lie past the joint angles" in capsys.readouterr().out
 
 
 def test_train_on_a_gap_base_in_one_step(data_file, tmp_path, capsys):

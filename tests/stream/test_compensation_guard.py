@@ -8,6 +8,8 @@ from hypothesis import strategies as st
 
 from kinematics.transforms import xyz_quat_from_transform
 from learner.config import ModelConfig
+from learner.envelope import MARGIN_DEG
+from learner.metrics import past_envelope
 from stream.compensation import CompensationConfig, CompensationRequest
 from stream.compensation_guard import GuardConfig, guarded_compensate, reach_m
 from wire import RejectedMessageError, decode, encode
@@ -20,6 +22,7 @@ CODES = (
     "residual",
     "corrected_limits",
     "epistemic",
+    "envelope",
 )
 
 
@@ -31,13 +34,17 @@ def fanuc(train_fanuc):
     return robot, model
 
 
-def answer(fanuc, **kw):
+#: What the guard answers with unless a test says otherwise.
+CFG = CompensationConfig(max_iterations=10)
+
+
+def answer(fanuc, cfg=CFG, **kw):
     """A request through the wire codec, then the guard (what the service does)."""
     robot, model = fanuc
     req = decode(
         encode(CompensationRequest(temperatures={"ambient": 20.0}, **kw)), CompensationRequest
     )
-    return guarded_compensate(model, robot, req, CompensationConfig(max_iterations=10), 7)
+    return guarded_compensate(model, robot, req, cfg, 7)
 
 
 def refused(reply) -> str:
@@ -122,3 +129,26 @@ def test_any_request_gets_an_answer_or_a_named_reason(fanuc, q, xyz, quat):
         lim = robot.description.limits_rad
         assert np.all((lim[:, 0] <= reply.q_corrected) & (reply.q_corrected <= lim[:, 1]))
         assert reply.residual_m <= GuardConfig().max_residual_m
+        assert not past_envelope(fanuc[1], np.array([q]), MARGIN_DEG)[0]
+
+
+@pytest.mark.parametrize("joint", [0, 4])
+def test_a_joint_past_the_angles_trained_on_is_not_trusted(fanuc, joint):
+    """The model saw each joint in half its range only: a command beyond it, inside the
+    description's limits, gets the correction but ``envelope``, naming the joint and the arc."""
+    robot, _ = fanuc
+    cfg = CompensationConfig(max_iterations=10, epistemic_limit_mm=1e3)  # this flag alone
+    upper = robot.description.limits_rad[joint, 1]
+    q = np.zeros(6)
+    assert answer(fanuc, cfg, q=tuple(q)).trusted
+    q[joint] = 0.8 * upper  # the training poses reach 0.5 x the limit
+    reply = answer(fanuc, cfg, q=tuple(q))
+    assert refused(reply) == "envelope"
+    assert reply.reason.startswith(f"envelope: q{joint + 1} = {np.rad2deg(q[joint]):.1f} deg")
+    assert "outside the angles trained on" in reply.reason
+    assert reply.q_corrected != tuple(q)  # corrected all the same: the flag is the warning
+    q[joint] = 0.5 * upper + np.deg2rad(2.0)  # within the margin
+    assert answer(fanuc, cfg, q=tuple(q)).trusted
+    q[joint] = 0.0
+    q[5] = 0.8 * robot.description.limits_rad[5, 1]  # J6 (±360°) was trained over a whole turn
+    assert answer(fanuc, cfg, q=tuple(q)).trusted

@@ -1,0 +1,109 @@
+"""The joint angles a model was trained on: per joint, the arc from its lowest to its highest
+training angle on the circle (the circle less its largest stretch without a training angle).
+
+Where a command takes a joint to an angle no training point came near, the physics base and the
+network both extrapolate, and neither the epistemic spread nor the intervals say so: trained on
+one half of q1's range, a model's 90 % intervals cover 72-88 % of the other half on random arms
+while its epistemic std there rises only 1.5-3 x (BENCHMARKS.md, "Off the training
+distribution: the trained envelope").
+Compensation marks such commands untrusted (code ``envelope``). Angles are taken on the circle,
+as the kinematics and the kinematic input encoding see a joint (a ±360° wrist is one circle).
+The angles seen are kept in 5° bins, so a model that goes on learning widens its envelope
+exactly. Each joint is checked on its own: a pose whose every angle lies in its joint's arc, in
+a combination never seen, passes.
+
+>>> seen = widen(None, np.deg2rad([[10.0, -90.0], [40.0, 170.0]]))
+>>> outside(seen, np.deg2rad([[20.0, -92.0], [120.0, 0.0]]), margin_deg=5.0).tolist()
+[False, True]
+>>> why_outside(seen, np.deg2rad([120.0, 0.0]), margin_deg=5.0)
+'q1 = 120.0 deg is more than 5 deg outside the angles trained on (10..45 deg)'
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: How far past a joint's arc a command is still trusted (deg): one bin either side.
+MARGIN_DEG = 5.0
+#: Width of one bin (deg); 72 bins make the circle.
+BIN_DEG = 5.0
+N_BINS = int(360 / BIN_DEG)
+
+
+def joint_count(names: tuple[str, ...]) -> int:
+    """How many leading features are the joint angles ``q1..qn``."""
+    n = 0
+    while n < len(names) and names[n] == f"q{n + 1}":
+        n += 1
+    return n
+
+
+def _bins(q: np.ndarray) -> np.ndarray:
+    """The bin of each angle (rad) on the circle."""
+    return np.floor(np.mod(np.rad2deg(q), 360.0) / BIN_DEG).astype(int) % N_BINS
+
+
+def widen(envelope: np.ndarray | None, q: np.ndarray) -> np.ndarray:
+    """``envelope`` (bool ``(n_joints, 72)``, None: nothing seen) with the joint angles ``q``
+    ``(N, n_joints)`` (rad) added."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    seen = np.zeros((q.shape[1], N_BINS), dtype=bool)
+    for j, bins in enumerate(_bins(q).T):
+        seen[j, bins] = True
+    return seen if envelope is None else envelope | seen
+
+
+def _arcs(envelope: np.ndarray) -> np.ndarray:
+    """Per joint, the bins of the arc its seen bins span: the circle less the longest run of
+    unseen bins (nothing for a joint with no bin seen)."""
+    arcs = np.zeros_like(envelope)
+    for j, seen in enumerate(envelope):
+        idx = np.flatnonzero(seen)
+        if idx.size:
+            steps = np.diff(np.append(idx, idx[0] + N_BINS))  # to the next seen bin, circularly
+            i = int(np.argmax(steps))
+            start, stop = idx[(i + 1) % idx.size], idx[i]
+            arcs[j, (start + np.arange((stop - start) % N_BINS + 1)) % N_BINS] = True
+    return arcs
+
+
+def _near(envelope: np.ndarray, margin_deg: float) -> np.ndarray:
+    """Bins within ``margin_deg`` of a joint's arc."""
+    reach = int(np.ceil(margin_deg / BIN_DEG))
+    arcs = _arcs(envelope)
+    near = arcs.copy()
+    for shift in range(1, reach + 1):
+        near |= np.roll(arcs, shift, axis=1) | np.roll(arcs, -shift, axis=1)
+    return near
+
+
+def outside(envelope: np.ndarray, q: np.ndarray, margin_deg: float) -> np.ndarray:
+    """Per pose of ``q`` ``(N, n_joints)`` (rad): does a joint lie more than ``margin_deg``
+    (rounded up to whole bins) outside its arc? ``(N,)`` bool."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    near = _near(envelope, margin_deg)
+    return ~near[np.arange(q.shape[1]), _bins(q)].all(axis=1)
+
+
+def why_outside(envelope: np.ndarray, q: np.ndarray, margin_deg: float) -> str:
+    """The first joint of one pose ``q`` (rad) outside the envelope, for people; "" if none."""
+    q = np.asarray(q, dtype=float).reshape(-1)
+    near = _near(envelope, margin_deg)
+    for j, b in enumerate(_bins(q)):
+        if not near[j, b]:
+            return (
+                f"q{j + 1} = {np.rad2deg(q[j]):.1f} deg is more than {margin_deg:g} deg outside "
+                f"the angles trained on ({_arc_text(_arcs(envelope)[j])} deg)"
+            )
+    return ""
+
+
+def _arc_text(arc: np.ndarray) -> str:
+    """One joint's arc in degrees, counter-clockwise from its first bin (-180..180): e.g.
+    ``150..190`` crosses ±180°."""
+    if arc.all():
+        return "-180..180"
+    first = int(np.argmax(arc & ~np.roll(arc, 1)))  # a seen bin after an unseen one
+    lo = (first * BIN_DEG + 180) % 360 - 180
+    hi = lo + int(arc.sum()) * BIN_DEG
+    return f"{lo:g}..{hi:g}"

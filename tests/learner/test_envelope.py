@@ -1,0 +1,112 @@
+"""The joint angles a model was trained on: the arc per joint on the circle, how fit and the
+continual learner widen it, and that snapshots carry it."""
+
+import numpy as np
+import pytest
+
+from learner.config import ContinualConfig, ModelConfig, TrainConfig
+from learner.continual import ContinualLearner
+from learner.envelope import MARGIN_DEG, outside, why_outside, widen
+from learner.features import FeatureSpec
+from learner.metrics import past_envelope
+from learner.model import ErrorModel
+from learner.snapshot import snapshot_from_bytes, snapshot_to_bytes
+
+SPEC = FeatureSpec(
+    names=("q1", "q2", "temp_a"), low=np.array([-4.0, -4.0, 0.0]), high=np.array([4.0, 4.0, 50.0])
+)
+
+
+def deg(*angles):
+    return np.deg2rad(np.array(angles, dtype=float))
+
+
+def test_the_arc_spans_the_training_angles_the_short_way_round():
+    seen = widen(None, deg(170, -175, -160, 178)[:, None])  # across ±180°
+    assert not outside(seen, deg(175, -170, 180, -180)[:, None], MARGIN_DEG).any()
+    assert outside(seen, deg(0, 90, -90, 150)[:, None], MARGIN_DEG).all()
+    # 360° apart is the same angle; a joint seen all the way round is never outside
+    assert not outside(seen, deg(170 - 360, -160 + 720)[:, None], MARGIN_DEG).any()
+    full = widen(None, deg(*range(-180, 180, 4))[:, None])
+    assert not outside(full, deg(*range(-720, 720, 7))[:, None], MARGIN_DEG).any()
+
+
+def test_the_margin_and_the_largest_gap():
+    seen = widen(None, deg(0, 90, 180, 200)[:, None])  # the largest gap: 200..360
+    assert not outside(seen, deg(45, 135, 190)[:, None], MARGIN_DEG).any()  # gaps inside
+    assert not outside(seen, deg(207)[:, None], MARGIN_DEG).any()  # 5° past the last bin
+    assert outside(seen, deg(215, 300, -10)[:, None], MARGIN_DEG).all()
+    assert outside(seen, deg(-10)[:, None], margin_deg=0.0).all()
+    assert not outside(seen, deg(-10)[:, None], margin_deg=10.0).any()
+    assert why_outside(seen, deg(300), MARGIN_DEG) == (
+        "q1 = 300.0 deg is more than 5 deg outside the angles trained on (0..205 deg)"
+    )
+    assert why_outside(seen, deg(100), MARGIN_DEG) == ""
+
+
+def test_each_joint_is_checked_and_widening_is_a_union():
+    a = widen(None, deg([0, 0], [30, 10]))
+    b = widen(a, deg([100, 5]))
+    q = deg([90, 5], [15, 5], [15, 60])
+    assert outside(a, q, MARGIN_DEG).tolist() == [True, False, True]
+    assert outside(b, q, MARGIN_DEG).tolist() == [False, False, True]
+    assert why_outside(b, deg(15, 60), MARGIN_DEG).startswith("q2 = 60.0 deg")
+
+
+def _model(seed=0):
+    return ErrorModel.create(
+        SPEC,
+        ModelConfig(hidden_layers=1, neurons=8, encoding="minmax"),
+        TrainConfig(max_epochs=5, batch_size=32),
+        seed=seed,
+    )
+
+
+def _points(rng, n, q1):
+    X = np.column_stack([rng.uniform(*q1, n), rng.uniform(-1, 1, n), rng.uniform(15, 30, n)])
+    return X, 1e-4 * np.sin(X[:, :1] + np.arange(6))
+
+
+def test_fit_records_the_envelope_and_snapshots_carry_it():
+    rng = np.random.default_rng(0)
+    X, Y = _points(rng, 80, (-1.0, 0.0))
+    m = _model()
+    assert m.envelope is None and not past_envelope(m, X).any()
+    m.fit(X, Y)
+    far = np.array([[0.8, 0.0, 20.0], [-0.5, 0.0, 45.0]])  # the temperature is not checked
+    assert past_envelope(m, far).tolist() == [True, False]
+    assert not past_envelope(m, X).any()
+    back = snapshot_from_bytes(snapshot_to_bytes(m))
+    np.testing.assert_array_equal(back.envelope, m.envelope)
+    m.envelope = None  # as a snapshot written before the envelope existed
+    assert snapshot_from_bytes(snapshot_to_bytes(m)).envelope is None
+
+
+def test_the_published_model_of_a_stream_widens_as_the_stream_goes_on():
+    rng = np.random.default_rng(1)
+    X1, Y1 = _points(rng, 100, (-1.0, 0.0))
+    X2, Y2 = _points(rng, 100, (0.0, 1.0))
+    cfg = ContinualConfig(memory=50, batch=25, init=25, epochs_per_update=5, init_epochs=5)
+    learner = ContinualLearner(_model(), cfg)
+    for _ in learner.learn_stream(X1, Y1):
+        pass
+    probe = np.array([[0.8, 0.0, 20.0]])
+    assert past_envelope(learner.model, probe)[0]
+    for _ in learner.learn_stream(X2, Y2):
+        pass
+    assert not past_envelope(learner.model, probe)[0]
+    # the memory holds 50 points, the envelope every angle learned
+    assert not past_envelope(learner.model, np.concatenate([X1, X2])).any()
+    again = ContinualLearner(_model(), cfg)  # a restarted daemon, from the learner's state
+    again.load_state(learner.state_dict())
+    for a, b in ((again.model, learner.model), (again.trained, learner.trained)):
+        np.testing.assert_array_equal(a.envelope, b.envelope)
+
+
+@pytest.mark.parametrize("margin", [-1.0, float("nan")])
+def test_a_bad_margin_is_a_config_error(margin):
+    from kinematics.errors import ConfigError
+    from stream.compensation import CompensationConfig
+
+    with pytest.raises(ConfigError, match="envelope_margin_deg"):
+        CompensationConfig(envelope_margin_deg=margin)
