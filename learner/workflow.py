@@ -141,6 +141,8 @@ class ContinualResult:
     curve: list[dict] = field(default_factory=list)
     test: AccuracyReport | None = None
     total_time_s: float = 0.0
+    #: With a carried learner: the share of the day's poses past its model's envelope at start.
+    day_past_envelope: float | None = None
 
 
 def continual_on_dataset(
@@ -160,7 +162,8 @@ def continual_on_dataset(
     every update. ``base`` is ``cfg.base`` or a model file. With ``start`` (a learner carried
     from another day, :func:`load_learner`) its frames are re-identified and its network
     weighed from the first ``init`` points before they are learned
-    (:meth:`ContinualLearner.carry`)."""
+    (:meth:`ContinualLearner.carry`), and the share of the day's poses past the joint angles
+    its model was trained on is reported."""
     if start is None:
         p = prepare(ds, test_fraction=test_fraction, seed=seed)
         physics = None  # identified by the learner from its first points
@@ -174,7 +177,9 @@ def continual_on_dataset(
         p = prepare(ds, test_fraction=test_fraction, seed=seed, spec=learner.model.spec)
     train = np.sort(p.train)
     Xtr, Ytr = p.X[train], p.Y[train]
+    day_past = None
     if start is not None:
+        day_past = float(past_envelope(learner.model, p.X).mean())
         learner.carry(Xtr[: cfg.init], Ytr[: cfg.init])
     Xte, Yte = p.X[p.test], p.Y[p.test]
     updates, curve = [], []
@@ -195,6 +200,7 @@ def continual_on_dataset(
         curve=curve,
         test=test,
         total_time_s=float(sum(u.train_time_s for u in updates)),
+        day_past_envelope=day_past,
     )
 
 

@@ -157,6 +157,12 @@ class Continual(Command):
             f"model -> {args.out}; curve -> {csv_path}, {png_path} ({len(result.updates)} "
             f"updates, {result.total_time_s:.1f} s training)"
         )
+        if result.day_past_envelope is not None:
+            out["day_past_envelope"] = result.day_past_envelope
+            text += (
+                f"\n{100 * result.day_past_envelope:.1f}% of this day's poses lay past the joint "
+                f"angles {args.start} was trained on"
+            )
         return _emit_learned(result, out, text, args.json)
 
 

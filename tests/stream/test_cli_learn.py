@@ -49,6 +49,14 @@ def test_train_then_evaluate(data_file, tmp_path, capsys):
     assert "90% interval covers" in capsys.readouterr().out
 
 
+def evaluate_envelope(model: Path, data: Path) -> int:
+    """How many of ``data``'s poses lie past ``model``'s envelope (learner.workflow's count)."""
+    from kinematics.dataset import read_dataset
+    from learner.workflow import envelope_on_dataset
+
+    return envelope_on_dataset(load_snapshot(model), read_dataset(data))["n_outside"]
+
+
 def test_evaluate_names_the_poses_past_the_angles_trained_on(tmp_path, capsys):
     """A model of one half of q1's range on the other half: evaluate says how much of it lies
     there and how the rest fares."""
@@ -66,6 +74,11 @@ def test_evaluate_names_the_poses_past_the_angles_trained_on(tmp_path, capsys):
     assert envelope["inside"]["n"] == 120 - envelope["n_outside"]
     assert main(argv) == 0
     assert "of the poses lie past the joint angles" in capsys.readouterr().out
+    # carried into that day, continual says the same of the day's poses before it learns them
+    day = ["--from", str(model), "--test-fraction", "0", "--init", "40"]
+    out = _continual(capsys, tmp_path / "all.parquet", tmp_path / "m2.safetensors", *day)
+    assert out["day_past_envelope"] == envelope["outside_share"]
+    assert not evaluate_envelope(tmp_path / "m2.safetensors", tmp_path / "all.parquet")
 
 
 def test_train_on_a_gap_base_in_one_step(data_file, tmp_path, capsys):
@@ -136,6 +149,7 @@ def test_continual_goes_on_from_a_model_with_its_memory(data_file, tmp_path, cap
     out = _continual(capsys, data_file, second, *carry, "--frame-prior-mm", "0.3")
     assert out["updates"] == 4  # all 160 points streamed, no first model trained again
     assert out["base"]["kind"] == "geometric" and out["test"] == {}
+    assert out["day_past_envelope"] < 0.05  # the same poses as the day it was trained on
     model = load_snapshot(second)
     assert model.base_kind == "geometric" and model.is_fitted
     argv = ["continual", "--data", str(data_file), "--out", str(second), *carry]
