@@ -113,6 +113,12 @@ def test_the_service_answers_with_its_configured_policy(fanuc):
         reply = decode(got[0].ok.payload.to_bytes(), CompensationReply)
         assert reply.policy == "best_effort" and reply.trusted and reply.residual_m <= LIMIT_M
         assert reply.model_version == 1 and reply.joint_motion_rad > 0.05
+        # the snapshot on the bus carries the angles the model was trained on (half of each
+        # joint's range): a command past them is corrected but not trusted
+        req = CompensationRequest(q=(2.5, *REGULAR[1:]), temperatures={"ambient": 20.0})
+        got = list(client.get(key(cell, name, "compensate"), payload=encode(req), timeout=30.0))
+        reply = decode(got[0].ok.payload.to_bytes(), CompensationReply)
+        assert not reply.trusted and reply.reason.startswith("envelope: q1 = 143.2 deg")
     finally:
         service.unsubscribe()
         service.close(timeout_s=10.0)
