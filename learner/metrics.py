@@ -90,3 +90,13 @@ def past_envelope(model: ErrorModel, X: np.ndarray, margin_deg: float = MARGIN_D
     if model.envelope is None:
         return np.zeros(len(X), dtype=bool)
     return outside(model.envelope, np.asarray(X)[:, : joint_count(model.spec.names)], margin_deg)
+
+
+def envelope_report(
+    model: ErrorModel, X: np.ndarray, Y: np.ndarray, margin_deg: float = MARGIN_DEG
+) -> dict:
+    """How much of ``X, Y`` lies past the joint angles ``model`` was trained on (a share, a
+    count) and the accuracy of the rest (None when nothing is left)."""
+    out = past_envelope(model, X, margin_deg)
+    inside = accuracy_report(model, X[~out], Y[~out]).to_dict() if (~out).any() else None
+    return {"outside_share": float(out.mean()), "n_outside": int(out.sum()), "inside": inside}

@@ -28,7 +28,6 @@ from learner.base import (
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from learner.continual import ContinualLearner
 from learner.continual_records import UpdateMetrics
-from learner.envelope import MARGIN_DEG
 from learner.features import FeatureSpec, dataset_feature_spec, dataset_features, dataset_labels
 from learner.metrics import AccuracyReport, accuracy_report, past_envelope
 from learner.model import ErrorModel, TrainReport
@@ -206,19 +205,10 @@ def continual_on_dataset(
 
 def evaluate_on_dataset(model: ErrorModel, ds: Dataset) -> AccuracyReport:
     """Accuracy of a trained model on every point of ``ds`` (features by the model's names)."""
-    return accuracy_report(model, *_evaluation_points(model, ds))
+    return accuracy_report(model, *evaluation_points(model, ds))
 
 
-def envelope_on_dataset(model: ErrorModel, ds: Dataset, margin_deg: float = MARGIN_DEG) -> dict:
-    """How much of ``ds`` lies past the joint angles ``model`` was trained on (what compensation
-    marks ``envelope``: a share, a count) and the accuracy of the rest (None if nothing is)."""
-    X, Y = _evaluation_points(model, ds)
-    out = past_envelope(model, X, margin_deg)
-    inside = accuracy_report(model, X[~out], Y[~out]).to_dict() if (~out).any() else None
-    return {"outside_share": float(out.mean()), "n_outside": int(out.sum()), "inside": inside}
-
-
-def _evaluation_points(model: ErrorModel, ds: Dataset) -> tuple[np.ndarray, np.ndarray]:
+def evaluation_points(model: ErrorModel, ds: Dataset) -> tuple[np.ndarray, np.ndarray]:
     """Features and labels of every point of ``ds``, once it is checked to be the model's robot."""
     if model.spec.description is not None:
         check_match(model.spec.description, ds)

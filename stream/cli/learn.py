@@ -197,12 +197,14 @@ class Evaluate(Command):
 
     def take_action(self, args: argparse.Namespace) -> int:
         from kinematics.dataset import read_dataset
+        from learner.metrics import accuracy_report, envelope_report
         from learner.snapshot import load_snapshot
-        from learner.workflow import envelope_on_dataset, evaluate_on_dataset
+        from learner.workflow import evaluation_points
 
-        model, ds = load_snapshot(args.model), read_dataset(args.data)
-        report = evaluate_on_dataset(model, ds).to_dict()
-        report["envelope"] = envelope = envelope_on_dataset(model, ds)
+        model = load_snapshot(args.model)
+        X, Y = evaluation_points(model, read_dataset(args.data))
+        report = accuracy_report(model, X, Y).to_dict()
+        report["envelope"] = envelope = envelope_report(model, X, Y)
         text = _report_text(f"{args.data} ({report['n']} points)", report)
         if envelope["n_outside"]:
             text += (

@@ -52,9 +52,11 @@ def test_train_then_evaluate(data_file, tmp_path, capsys):
 def evaluate_envelope(model: Path, data: Path) -> int:
     """How many of ``data``'s poses lie past ``model``'s envelope (learner.workflow's count)."""
     from kinematics.dataset import read_dataset
-    from learner.workflow import envelope_on_dataset
+    from learner.metrics import envelope_report
+    from learner.workflow import evaluation_points
 
-    return envelope_on_dataset(load_snapshot(model), read_dataset(data))["n_outside"]
+    m = load_snapshot(model)
+    return envelope_report(m, *evaluation_points(m, read_dataset(data)))["n_outside"]
 
 
 def test_evaluate_names_the_poses_past_the_angles_trained_on(tmp_path, capsys):
