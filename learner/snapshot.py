@@ -39,6 +39,7 @@ from kinematics.errors import RobocalError, SnapshotError
 from kinematics.gap.model_file import EffectEntry
 from learner.base import PhysicsBase
 from learner.config import ModelConfig, TrainConfig
+from learner.envelope import N_BINS, joint_count
 from learner.features import FeatureSpec
 from learner.model import ErrorModel
 
@@ -148,9 +149,7 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
             interval_scale=tensors["interval_scale"].numpy(),
             base=_base_from_meta(meta.get("base"), tensors),
             residual_gain=float(meta.get("residual_gain", 1.0)),
-            envelope=tensors["joint_envelope"].numpy().astype(bool)
-            if "joint_envelope" in tensors
-            else None,
+            envelope=_envelope(tensors, spec.names),
         )
         state = {k[len("net.") :]: v for k, v in tensors.items() if k.startswith("net.")}
         model.net.load_state_dict(state, strict=True)
@@ -161,6 +160,18 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
     model.metrics = dict(meta.get("metrics", {}))
     model.net.eval()
     return model
+
+
+def _envelope(tensors: dict, names: tuple[str, ...]) -> np.ndarray | None:
+    """The ``joint_envelope`` tensor as bools ``(n_joints, 72)``; None when absent (snapshots
+    written before it existed). Another shape is a SnapshotError: compensation indexes it."""
+    if "joint_envelope" not in tensors:
+        return None
+    envelope = tensors["joint_envelope"].numpy()
+    shape = (joint_count(names), N_BINS)
+    if envelope.shape != shape:
+        raise SnapshotError(f"joint_envelope has shape {envelope.shape}, expected {shape}")
+    return envelope.astype(bool)
 
 
 def _base_meta(base: PhysicsBase) -> dict:

@@ -4,6 +4,7 @@ continual learner widen it, and that snapshots carry it."""
 import numpy as np
 import pytest
 
+from kinematics.errors import SnapshotError
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from learner.continual import ContinualLearner
 from learner.envelope import MARGIN_DEG, outside, why_outside, widen
@@ -80,6 +81,9 @@ def test_fit_records_the_envelope_and_snapshots_carry_it():
     np.testing.assert_array_equal(back.envelope, m.envelope)
     m.envelope = None  # as a snapshot written before the envelope existed
     assert snapshot_from_bytes(snapshot_to_bytes(m)).envelope is None
+    m.envelope = np.ones((3, 72), dtype=bool)  # a forged one: 3 joints for a 2-joint model
+    with pytest.raises(SnapshotError, match=r"joint_envelope has shape \(3, 72\), expected"):
+        snapshot_from_bytes(snapshot_to_bytes(m))
 
 
 def test_the_published_model_of_a_stream_widens_as_the_stream_goes_on():
