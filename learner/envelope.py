@@ -30,14 +30,6 @@ BIN_DEG = 5.0
 N_BINS = int(360 / BIN_DEG)
 
 
-def joint_count(names: tuple[str, ...]) -> int:
-    """How many leading features are the joint angles ``q1..qn``."""
-    n = 0
-    while n < len(names) and names[n] == f"q{n + 1}":
-        n += 1
-    return n
-
-
 def _bins(q: np.ndarray) -> np.ndarray:
     """The bin of each angle (rad) on the circle."""
     return np.floor(np.mod(np.rad2deg(q), 360.0) / BIN_DEG).astype(int) % N_BINS

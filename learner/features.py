@@ -76,6 +76,11 @@ class FeatureSpec:
     def n_features(self) -> int:
         return len(self.names)
 
+    @property
+    def n_joints(self) -> int:
+        """How many joint angles ``q1..qn`` the features hold (the leading columns)."""
+        return _plan(self.names).n_joints
+
     def scale(self, X: np.ndarray) -> np.ndarray:
         """Raw SI features ``(N, F)`` -> ``[-1, 1]`` over the declared ranges."""
         X = np.asarray(X, dtype=float)

@@ -13,7 +13,7 @@ import numpy as np
 
 from kinematics.error_stats import ErrorStats
 from kinematics.transforms import ARCMIN_PER_RAD
-from learner.envelope import MARGIN_DEG, joint_count, outside
+from learner.envelope import MARGIN_DEG, outside
 from learner.model import ErrorModel
 
 LEVELS = (0.68, 0.90, 0.95)
@@ -89,7 +89,7 @@ def past_envelope(model: ErrorModel, X: np.ndarray, margin_deg: float = MARGIN_D
     (:mod:`learner.envelope`, what compensation marks ``envelope``)? All False without one."""
     if model.envelope is None:
         return np.zeros(len(X), dtype=bool)
-    return outside(model.envelope, np.asarray(X)[:, : joint_count(model.spec.names)], margin_deg)
+    return outside(model.envelope, np.asarray(X)[:, : model.spec.n_joints], margin_deg)
 
 
 def envelope_report(

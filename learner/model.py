@@ -33,7 +33,7 @@ from learner.base import PhysicsBase
 from learner.config import ModelConfig, TrainConfig
 from learner.encoding import input_encoder, n_inputs
 from learner.ensemble import EvidentialEnsemble
-from learner.envelope import joint_count, widen
+from learner.envelope import widen
 from learner.evidential import Evidential, combine_members, evidential_loss
 from learner.features import FeatureSpec
 
@@ -301,7 +301,7 @@ class ErrorModel:
                 Y[order[:n_val]],
             )
         R = Y - self.base_error(X)  # the network learns what the base leaves
-        self.envelope = widen(self.envelope, X[:, : joint_count(self.spec.names)])
+        self.envelope = widen(self.envelope, X[:, : self.spec.n_joints])
         self._ensure_label_scaler(R)
         Xs, Ys = self.scale_x(X), self.scale_y(R)
         val = None

@@ -39,7 +39,7 @@ from kinematics.errors import RobocalError, SnapshotError
 from kinematics.gap.model_file import EffectEntry
 from learner.base import PhysicsBase
 from learner.config import ModelConfig, TrainConfig
-from learner.envelope import N_BINS, joint_count
+from learner.envelope import N_BINS
 from learner.features import FeatureSpec
 from learner.model import ErrorModel
 
@@ -149,7 +149,7 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
             interval_scale=tensors["interval_scale"].numpy(),
             base=_base_from_meta(meta.get("base"), tensors),
             residual_gain=float(meta.get("residual_gain", 1.0)),
-            envelope=_envelope(tensors, spec.names),
+            envelope=_envelope(tensors, spec),
         )
         state = {k[len("net.") :]: v for k, v in tensors.items() if k.startswith("net.")}
         model.net.load_state_dict(state, strict=True)
@@ -162,13 +162,13 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
     return model
 
 
-def _envelope(tensors: dict, names: tuple[str, ...]) -> np.ndarray | None:
+def _envelope(tensors: dict, spec: FeatureSpec) -> np.ndarray | None:
     """The ``joint_envelope`` tensor as bools ``(n_joints, 72)``; None when absent (snapshots
     written before it existed). Another shape is a SnapshotError: compensation indexes it."""
     if "joint_envelope" not in tensors:
         return None
     envelope = tensors["joint_envelope"].numpy()
-    shape = (joint_count(names), N_BINS)
+    shape = (spec.n_joints, N_BINS)
     if envelope.shape != shape:
         raise SnapshotError(f"joint_envelope has shape {envelope.shape}, expected {shape}")
     return envelope.astype(bool)
