@@ -210,7 +210,8 @@ class ContinualConfig:
     points, ``moved_frame_prior_mm`` how far when those points show that the tracker or tool
     moved (:meth:`ContinualLearner.carry`, :func:`learner.base.carried_frames`).
     ``aci_rate`` is the step of the adaptive conformal interval scale per new point outside
-    (or inside) the ``aci_level`` interval, in log units (0 turns it off). ``quarantine``
+    (or inside) the ``aci_level`` interval, in log units (0 turns it off; it never narrows
+    the intervals below the held-out calibration, :mod:`learner.conformal`). ``quarantine``
     keeps poisoned points out and withholds updates that worsen the held-out error (a table
     ``[learner.continual.quarantine]`` in TOML)."""
 

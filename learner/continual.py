@@ -6,24 +6,19 @@ position and orientation count alike), lets the replay strategy pick the new mem
 the model warm-started on it, at the fine-tuning rate ``update_lr``. A ``holdout`` share of
 every batch never enters the pool: it joins a first-in-first-out set of the latest
 ``calibration_size`` such points, on which the intervals are calibrated after each training —
-data the model was never trained on, like the batch model's validation split. (Calibrating on
-the new batch before training on it, the obvious alternative, let the 90 % coverage swing
-between 73 % and 95 % from one update to the next; see BENCHMARKS.md.) The same set chooses
-which epoch's weights an update keeps, as in batch training. Until ``init`` points have
-arrived, updates only collect points; then the first model is trained on them.
+data the model was never trained on (calibrating on the new batch before training on it let
+the 90 % coverage swing between 73 % and 95 %); it also chooses which epoch's weights an
+update keeps. Until ``init`` points have arrived, updates only collect points.
 
 Poisoned measurements are kept out (:mod:`learner.quarantine`): every new point is screened
-against the published model and its neighbours before anything else sees it, and a quarantined
-point is neither trained on, held out nor kept in memory. An update whose published model is
-worse on the held-out set than the last published one by more than
-``quarantine.publish_tolerance`` is withheld: the last good model stays published.
+against the published model and its neighbours first; a quarantined point is neither trained
+on, held out nor kept. An update whose published model is worse on the held-out set than the
+last by more than ``quarantine.publish_tolerance`` is withheld.
 
 The model the learner publishes (:attr:`ContinualLearner.model`) is not the trained one
 (:attr:`ContinualLearner.trained`) but an exponential moving average of its weights over
-updates, the latest update's share ``average``. Each update fits its weights to the
-memory and its noise; the average keeps what the earlier memories taught. On the paper campaign
-it cut the continual model's test error from 0.054 to 0.050 mm (three seeds, BENCHMARKS.md).
-Ranking and training use the trained weights.
+updates, the latest update's share ``average``: it keeps what the earlier memories taught
+(paper campaign 0.054 -> 0.050 mm, BENCHMARKS.md). Ranking and training use the trained weights.
 """
 
 from __future__ import annotations
@@ -38,8 +33,15 @@ import torch
 
 from kinematics.errors import DatasetError, SnapshotError
 from kinematics.model import RobotModel
-from learner.base import PhysicsBase, carried_frames, identify_base, nominal_base
+from learner.base import (
+    PhysicsBase,
+    carried_frames,
+    held_out_labels,
+    identify_base,
+    nominal_base,
+)
 from learner.config import ContinualConfig
+from learner.conformal import adapt_log_scale
 from learner.continual_base import due, memory_base
 from learner.continual_records import Memory, UpdateMetrics
 from learner.continual_state import (  # noqa: F401
@@ -55,9 +57,8 @@ from learner.replay import replay_strategy
 from learner.snapshot import load_snapshot, snapshot_from_bytes, snapshot_to_bytes
 
 #: Held-out points of a new day (since :meth:`ContinualLearner.carry`) from which the carried
-#: network's gain and the interval scale are re-fitted on them after each update; until then
-#: the gain fitted on the day's first points and the scale the model came with stand (a scale
-#: fitted on UR10 B's first 10 held-out points covered 68-82 % of the series).
+#: network's gain and the interval scale are re-fitted after each update (a scale fitted on
+#: UR10 B's first 10 held-out points covered 68-82 % of the series).
 MIN_DAY_POINTS = 20
 
 
@@ -229,22 +230,22 @@ class ContinualLearner:
 
     def carry(self, X: np.ndarray, Y: np.ndarray) -> float:
         """Start a new day or cell from its first points ``X, Y``: re-identify the base's frames
-        (the network's residual taken off, :func:`learner.base.carried_frames`), empty the
-        held-out set (it was another day's) and fit the carried network's gain on these points,
-        which it never saw (:meth:`ErrorModel.weigh_residual`); returns the gain. The gain and
-        the interval scale are fitted on the day's held-out points after each update once
-        :data:`MIN_DAY_POINTS` are there; until then the model's scale stands (if frames moved,
-        no narrower than these points show)."""
+        (:func:`learner.base.carried_frames`), empty the held-out set (another day's) and fit the
+        carried network's gain on these points (:meth:`ErrorModel.weigh_residual`); returns it.
+        Gain and scale are re-fitted on the day's held-out points once :data:`MIN_DAY_POINTS`
+        are there; until then the model's scale stands, or if the frames moved, no narrower than
+        these points show to frames fitted without them (:func:`learner.base.held_out_labels`)."""
         X, Y = self._check(X, Y)
         spec, residual = self.model.spec, self.model.residual(X)
         priors = self.cfg.frame_prior_mm * 1e-3, self.cfg.moved_frame_prior_mm * 1e-3
-        base, moved = carried_frames(self.base, spec, X, Y, residual, *priors)
+        old, (base, moved) = self.base, carried_frames(self.base, spec, X, Y, residual, *priors)
         self.rebase(base)
         self._cal_x, self._cal_y = self._cal_x[:0], self._cal_y[:0]
         self.trained.residual_gain = self.model.weigh_residual(X, Y)
         scale = self.model.interval_scale.copy()
-        if moved:  # the cell changed: intervals no narrower than its first points show
-            self.model.interval_scale = scale = np.maximum(scale, self.model.calibrate(X, Y))
+        if moved:
+            held = held_out_labels(old, spec, X, Y, residual, priors[1], base)
+            self.model.interval_scale = scale = np.maximum(scale, self.model.calibrate(X, held))
         self.day_scale = scale / np.exp(self.aci_log_scale)
         return self.trained.residual_gain
 
@@ -258,15 +259,13 @@ class ContinualLearner:
             model.base = base
 
     def _adapt_intervals(self, X: np.ndarray, Y: np.ndarray) -> None:
-        """Adaptive conformal inference (Gibbs & Candès 2021) on the interval scale: each new
-        point outside the published ``aci_level`` interval widens its component's intervals,
-        each inside narrows them, by ``aci_rate`` in log scale; on the stream the share outside
-        tends to ``1 - aci_level`` whatever the shift (a new day, an unseen region)."""
+        """Adaptive conformal inference on the interval scale, point by point in stream order
+        (:mod:`learner.conformal`): misses widen the intervals, points inside narrow them."""
         if self.cfg.aci_rate == 0 or not self.model.is_fitted:
             return
-        lo, hi = self.model.predict(X).interval(self.cfg.aci_level)
-        miss = ((lo > Y) | (hi < Y)).sum(axis=0) - (1.0 - self.cfg.aci_level) * len(Y)
-        self.aci_log_scale = np.clip(self.aci_log_scale + self.cfg.aci_rate * miss, -3.0, 3.0)
+        c, (lo, hi) = self.cfg, self.model.predict(X).interval(self.cfg.aci_level)
+        excess = np.abs(2.0 * Y - lo - hi) / (hi - lo)
+        self.aci_log_scale = adapt_log_scale(self.aci_log_scale, excess, c.aci_rate, c.aci_level)
 
     def _publish(self) -> None:
         """Move the published weights towards the trained ones by ``average`` (the envelope

@@ -9,7 +9,7 @@ from kinematics.identification.conditions import observations_from_dataset
 from kinematics.identification.fitting import fit_effects
 from kinematics.importers.ipa import import_series
 from kinematics.model import RobotModel
-from learner.base import identify_base, measured_dataset, reidentify_frames
+from learner.base import held_out_labels, identify_base, measured_dataset, reidentify_frames
 from learner.workflow import prepare
 from tests.learner.conftest import make_dataset
 from tests.learner.test_base import _frame, _moved, _position_mm
@@ -81,3 +81,24 @@ def test_a_real_days_first_points_tilt_the_frames_less_under_the_prior(shared_da
     held = error_mm(reidentify_frames(base, b.spec, b.X[:10], b.Y[:10]))
     free = error_mm(reidentify_frames(base, b.spec, b.X[:10], b.Y[:10], prior_m=None))
     assert held < 0.85 * free
+
+
+@pytest.mark.parametrize("k", [10, 25])
+def test_held_out_labels_show_what_the_frames_miss_beyond_their_own_points(points, base, k):
+    """Frames fitted on a moved day's first k points fit those points better than the rest of
+    the day; the same points scored by frames fitted without them do not (the carry calibrates
+    its intervals on these, :meth:`learner.continual.ContinualLearner.carry`)."""
+    p, nominal = points, RobotModel(points.spec.description)
+    Y2 = _moved(p, _frame([2e-3, -1e-3, 0.5e-3], 2e-3), _frame([0, 1e-3, 0], 1e-3))
+    X, Y, none = p.X[200 : 200 + k], Y2[200 : 200 + k], np.zeros((k, 6))
+    fitted = reidentify_frames(base, p.spec, X, Y, residual=none, prior_m=3e-4)
+    held = held_out_labels(base, p.spec, X, Y, none, 3e-4, fitted)
+
+    def rms(Y: np.ndarray, X: np.ndarray) -> float:
+        return float(
+            np.sqrt(np.mean(np.sum((Y - fitted.error(p.spec, X, nominal))[:, :3] ** 2, 1)))
+        )
+
+    rest_of_day = rms(Y2[:200], p.X[:200])
+    assert rms(Y, X) < 0.9 * rest_of_day  # in-sample: over-confident
+    assert rms(held, X) > 0.95 * rest_of_day
