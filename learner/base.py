@@ -320,10 +320,10 @@ def held_out_labels(
     """``Y`` moved so that ``fitted`` (frames re-identified on all of ``X, Y``) leaves at each
     point what frames fitted without that point's fold leave: calibrating intervals on them
     measures how far the frames miss points they were not fitted to, not how well they fit
-    their own (on 10 points the second is far smaller)."""
+    their own (on 10 points the second is far smaller). Fewer than 2 points: ``Y`` as it is."""
     nominal = RobotModel(spec.description)
     out = np.array(Y, dtype=float)
-    for fold in np.array_split(np.arange(len(X)), min(folds, len(X))):
+    for fold in np.array_split(np.arange(len(X)), min(folds, len(X))) if len(X) > 1 else ():
         rest = np.setdiff1d(np.arange(len(X)), fold)
         without = reidentify_frames(
             base, spec, X[rest], Y[rest], residual=residual[rest], prior_m=prior_m

@@ -8,7 +8,7 @@ share outside tends to ``1 - level`` whatever the shift.
 >>> import numpy as np
 >>> misses = np.full((100, 1), 3.0)  # a batch 3 half-widths off: intervals far too narrow
 >>> s = adapt_log_scale(np.zeros(1), misses, rate=0.05, level=0.9)
->>> round(float(np.exp(s[0])), 1)  # widened until the points fall inside, not 90 x 0.045
+>>> round(float(np.exp(s[0])), 1)  # until they fall inside; one step for all: e^(0.05 x 90)
 3.0
 """
 

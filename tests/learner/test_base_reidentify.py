@@ -102,3 +102,10 @@ def test_held_out_labels_show_what_the_frames_miss_beyond_their_own_points(point
     rest_of_day = rms(Y2[:200], p.X[:200])
     assert rms(Y, X) < 0.9 * rest_of_day  # in-sample: over-confident
     assert rms(held, X) > 0.95 * rest_of_day
+
+
+def test_held_out_labels_of_one_point_are_its_own(points, base):
+    p, Y = points, points.Y[:1]
+    fitted = reidentify_frames(base, p.spec, p.X[:1], Y, residual=np.zeros((1, 6)), prior_m=3e-4)
+    held = held_out_labels(base, p.spec, p.X[:1], Y, np.zeros((1, 6)), 3e-4, fitted)
+    np.testing.assert_array_equal(held, Y)
