@@ -321,14 +321,17 @@ def held_out_labels(
     point what frames fitted without that point's fold leave: calibrating intervals on them
     measures how far the frames miss points they were not fitted to, not how well they fit
     their own (on 10 points the second is far smaller). Fewer than 2 points: ``Y`` as it is."""
-    nominal = RobotModel(spec.description)
     out = np.array(Y, dtype=float)
-    for fold in np.array_split(np.arange(len(X)), min(folds, len(X))) if len(X) > 1 else ():
+    if len(X) < 2:
+        return out
+    nominal = RobotModel(spec.description)
+    out += fitted.error(spec, X, nominal)
+    for fold in np.array_split(np.arange(len(X)), min(folds, len(X))):
         rest = np.setdiff1d(np.arange(len(X)), fold)
         without = reidentify_frames(
             base, spec, X[rest], Y[rest], residual=residual[rest], prior_m=prior_m
         )
-        out[fold] += fitted.error(spec, X[fold], nominal) - without.error(spec, X[fold], nominal)
+        out[fold] -= without.error(spec, X[fold], nominal)
     return out
 
 
