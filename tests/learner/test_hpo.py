@@ -294,7 +294,9 @@ def test_two_worker_processes_share_one_journal(tmp_path):
             [
                 str(robocal), "hpo", "--data", str(data), "--trials", "6",
                 "--storage", str(journal), "--space", str(tmp_path / "space.toml"),
-                "--folds", "2", "--epochs", "6", "--no-prune", "--json",
+                # 60 epochs: a trial takes ~0.3 s, so both workers start one before the six run
+                # out (at 6 epochs all six ran in 0.3 s and one worker could take them all)
+                "--folds", "2", "--epochs", "60", "--no-prune", "--json",
                 "--out", str(tmp_path / f"m{k}.safetensors"),
             ],
             stdout=subprocess.PIPE,
