@@ -25,9 +25,11 @@ import queue
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import zenoh
 
+from kinematics.dataset import remove_stale_temporaries
 from kinematics.errors import RobocalError
 from stream.bus import Received, Worker, declare_alive, publisher
 from stream.log import JsonLogger
@@ -89,10 +91,12 @@ class Stage:
             self.session.declare_subscriber(self.key(stream), lambda s: offer(s, limit))
         )
 
-    def persist(self, write: Callable[[], object], what: str) -> None:
+    def persist(self, write: Callable[[], object], what: str, path: Path | None = None) -> None:
         """Run the state write ``write()``; on a full disk or lost permission either re-raise
         (``on_disk_full = "stop"``: fatal) or retry every ``retry_s`` until it succeeds or the
-        stage closes (``"wait"``)."""
+        stage closes (``"wait"``). Once a retry succeeds, the temporaries beside the stage's own
+        file ``path`` are removed: a directory made read-only mid-write keeps the atomic
+        writer from deleting its temporary."""
         waited = 0
         while True:
             try:
@@ -116,6 +120,8 @@ class Stage:
                 self._closing.wait(self.retry_s)
                 continue
             if waited:
+                if path is not None:
+                    remove_stale_temporaries(path)
                 self.log.info("state_writable", stage=self.name, robot=self.robot, what=what)
             return
 

@@ -275,7 +275,7 @@ class LearnerStage(Stage):
         (fatal) or wait (``on_disk_full``)."""
         if self.checkpoint_path is None:
             return
-        self.persist(self._write_checkpoint, "checkpoint")
+        self.persist(self._write_checkpoint, "checkpoint", self.checkpoint_path)
 
     def _write_checkpoint(self) -> None:
         written = write_checkpoint(self.core, self.checkpoint_path)

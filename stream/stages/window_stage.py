@@ -136,7 +136,7 @@ class WindowStage(Stage):
         if not (points or batches):
             return
         if self.state_path is not None:
-            self.persist(self._save_state, "window state")
+            self.persist(self._save_state, "window state", self.state_path)
         for p in points:
             self.put("points", encode(p))
             self.points += 1

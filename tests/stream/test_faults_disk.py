@@ -136,3 +136,41 @@ def test_on_disk_full_must_be_stop_or_wait():
 
     with pytest.raises(ConfigError, match="on_disk_full"):
         config_from_dict({"on_disk_full": "retry", "robot": [{"name": "r", "description": "ur10"}]})
+
+
+def test_a_temporary_left_by_a_read_only_remount_goes_once_the_write_succeeds(tmp_path, small_fs):
+    """The directory turns read-only between the atomic writer's temporary and its rename: the
+    writer cannot delete the temporary either; the stage's retry, once it succeeds, does."""
+    import io
+
+    from kinematics.dataset import atomic_write
+    from stream.log import JsonLogger
+    from stream.stages.window_stage import WindowStage
+    from stream.window import WindowConfig
+
+    session = open_session(BusConfig.loopback(free_port(), listen=True))
+    stage = WindowStage(session, "disk", "r1", WindowConfig(), JsonLogger(stream=io.StringIO()))
+    stage.on_disk_full, stage.retry_s = "wait", 0.05
+    path, tries = small_fs / "state.json", []
+
+    def whole(tmp: str) -> None:
+        Path(tmp).write_bytes(b"{}")
+
+    def cut_by_remount(tmp: str) -> None:
+        whole(tmp)
+        subprocess.run(["mount", "-o", "remount,ro", str(small_fs)], check=True)
+
+    def write() -> None:
+        tries.append(len(tries))
+        if len(tries) == 2:
+            subprocess.run(["mount", "-o", "remount,rw", str(small_fs)], check=True)
+        atomic_write(path, cut_by_remount if len(tries) == 1 else whole)
+
+    try:
+        stage.persist(write, "window state", path)
+    finally:
+        subprocess.run(["mount", "-o", "remount,rw", str(small_fs)], check=False)
+        stage.close()
+        session.close()
+    assert len(tries) == 2
+    assert sorted(p.name for p in small_fs.iterdir()) == ["state.json"]
