@@ -1,5 +1,6 @@
 """Resident memory over a long stream: window + learner + dashboard + recorder stages of a daemon
-fed over Zenoh loopback; RSS (VmRSS of /proc/self/status) sampled as the stream goes.
+fed over Zenoh loopback; RSS (VmRSS of /proc/PID/status, this process and the learner's training
+process together) sampled as the stream goes.
 
     .venv/bin/python bench/stream_memory.py [--n 2000] [--out /tmp/robocal-mem]
 """
@@ -7,6 +8,7 @@ fed over Zenoh loopback; RSS (VmRSS of /proc/self/status) sampled as the stream 
 from __future__ import annotations
 
 import argparse
+import os
 import threading
 import time
 from dataclasses import replace
@@ -27,10 +29,25 @@ from stream.sources import SimCellSource
 
 
 def rss_mib() -> float:
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    raise RuntimeError("no VmRSS in /proc/self/status")
+    """VmRSS of this process and its children (the training process), MiB."""
+    me = os.getpid()
+    procs = [p for p in Path("/proc").iterdir() if p.name.isdigit()]
+    total = 0
+    for proc in [Path(f"/proc/{me}"), *(p for p in procs if _parent(p) == me)]:
+        try:
+            status = (proc / "status").read_text().splitlines()
+        except OSError:  # ended meanwhile
+            continue
+        total += sum(int(line.split()[1]) for line in status if line.startswith("VmRSS:"))
+    return total / 1024
+
+
+def _parent(proc: Path) -> int | None:
+    """The parent pid of /proc/PID (None if that process is gone)."""
+    try:
+        return int((proc / "stat").read_text().rsplit(")", 1)[1].split()[1])
+    except (OSError, IndexError, ValueError):
+        return None
 
 
 def main() -> None:

@@ -33,13 +33,7 @@ import torch
 
 from kinematics.errors import DatasetError, SnapshotError
 from kinematics.model import RobotModel
-from learner.base import (
-    PhysicsBase,
-    carried_frames,
-    held_out_labels,
-    identify_base,
-    nominal_base,
-)
+from learner.base import PhysicsBase, carried_frames, held_out_labels, identify_base, nominal_base
 from learner.config import ContinualConfig
 from learner.conformal import adapt_log_scale
 from learner.continual_base import due, memory_base
@@ -50,11 +44,12 @@ from learner.continual_state import (  # noqa: F401
     state_path,
     state_to_bytes,
 )
-from learner.model import MIN_CALIBRATION, ErrorModel, TrainReport
+from learner.model import MIN_CALIBRATION, ErrorModel
 from learner.quarantine import QuarantineState, holdout_mm, model_residuals, screen, withhold
 from learner.quarantine import state_from_dict as quarantine_from_dict
 from learner.replay import replay_strategy
 from learner.snapshot import load_snapshot, snapshot_from_bytes, snapshot_to_bytes
+from learner.training import Trainer, TrainReport
 
 #: Held-out points of a new day (since :meth:`ContinualLearner.carry`) from which the carried
 #: network's gain and the interval scale are re-fitted after each update (a scale fitted on
@@ -82,6 +77,7 @@ class ContinualLearner:
         self.n_withheld = 0
         #: A carried model's interval scale (no ACI) while its day is young (:meth:`carry`).
         self.day_scale: np.ndarray | None = None
+        self.trainer: Trainer | None = None  # runs its fits (None: here; stream: a process)
         if model.is_fitted:  # a trained model (a snapshot) goes on learning with an empty memory
             self.trained = _copy(model)
             self.version = 1
@@ -114,7 +110,7 @@ class ContinualLearner:
         start = time.perf_counter()
         if self.trained.base is None and self.trained.spec.description is not None:
             self.trained.base = identify_base(self.cfg.base, self.trained.spec, X, Y)
-        report = self.trained.fit(X, Y, max_epochs=self.cfg.init_epochs)
+        report = self.trained.fit(X, Y, max_epochs=self.cfg.init_epochs, trainer=self.trainer)
         self.model = _copy(self.trained)
         self.version += 1
         m = self._metrics(len(X), len(self._mem_x), report, time.perf_counter() - start)
@@ -178,6 +174,7 @@ class ContinualLearner:
             max_epochs=self.cfg.epochs_per_update,
             val_fraction=0.0,
             lr=self.cfg.update_lr,
+            trainer=self.trainer,
         )
         withheld, holdout_mm = self._publish_gated()
         self._reidentify()
@@ -198,7 +195,10 @@ class ContinualLearner:
             return
         new = _copy(self.trained)
         new.base = base
-        new.fit(self._mem_x, self._mem_y, *cal, max_epochs=self.cfg.init_epochs, val_fraction=0.0)
+        epochs, trainer = self.cfg.init_epochs, self.trainer
+        new.fit(
+            self._mem_x, self._mem_y, *cal, max_epochs=epochs, val_fraction=0.0, trainer=trainer
+        )
         if holdout_mm(new, *cal) < holdout_mm(self.model, *cal):
             self.trained, self.model = new, _copy(new)
             self.model.interval_scale = self.model.interval_scale * np.exp(self.aci_log_scale)

@@ -18,9 +18,7 @@ Validation MSE is in these scaled label units (1.0 = the spread of the first tra
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -34,28 +32,13 @@ from learner.config import ModelConfig, TrainConfig
 from learner.encoding import input_encoder, n_inputs
 from learner.ensemble import EvidentialEnsemble
 from learner.envelope import widen
-from learner.evidential import Evidential, combine_members, evidential_loss
+from learner.evidential import Evidential, combine_members
 from learner.features import FeatureSpec
+from learner.training import Trainer, TrainReport, train_loop
 
 N_LABELS = 6
-#: Gradients are clipped to this total norm (scaled units); a non-finite norm skips the step.
-_MAX_GRAD_NORM = 100.0
 #: Fewest held-out points the interval scale is calibrated on (fit, continual updates).
 MIN_CALIBRATION = 5
-
-
-@dataclass(frozen=True, kw_only=True)
-class TrainReport:
-    """What one call of :meth:`ErrorModel.fit` did (val MSE in scaled label units)."""
-
-    epochs: int
-    best_epoch: int
-    best_val_mse: float
-    final_train_loss: float
-    final_lr: float
-    skipped_steps: int
-    train_time_s: float
-    val_mse_history: tuple[float, ...] = field(default=(), repr=False)
 
 
 @runtime_checkable
@@ -271,6 +254,7 @@ class ErrorModel:
         max_epochs: int | None = None,
         val_fraction: float | None = None,
         lr: float | None = None,
+        trainer: Trainer | None = None,
     ) -> TrainReport:
         """Train (warm-started from the current weights) with Adam and the evidential loss;
         the training points' joint angles widen :attr:`envelope`.
@@ -280,7 +264,9 @@ class ErrorModel:
         calibrated on the validation set (:meth:`calibrate`). ``on_epoch(epoch, val_mse)`` runs
         after every epoch (val MSE in scaled label units, train loss when no validation) and may
         raise to stop training (e.g. ``optuna.TrialPruned``); the exception propagates.
-        ``max_epochs``, ``val_fraction`` and ``lr`` override the train config for this call.
+        ``max_epochs``, ``val_fraction`` and ``lr`` override the train config for this call;
+        ``trainer`` runs the loop (:func:`train_loop` here, or e.g. a
+        :class:`~learner.train_process.TrainProcess`).
         """
         cfg = self.train_cfg
         X = np.asarray(X, dtype=float)
@@ -308,87 +294,10 @@ class ErrorModel:
         if X_val is not None:
             val = (self.scale_x(X_val), self.scale_y(_check_labels(Y_val) - self.base_error(X_val)))
         epochs = max_epochs or cfg.max_epochs
-        report = _train_loop(self, Xs, Ys, val, gen, epochs, lr or cfg.lr, on_epoch)
+        report = (trainer or train_loop)(self, Xs, Ys, val, gen, epochs, lr or cfg.lr, on_epoch)
         if X_val is not None and len(X_val) >= MIN_CALIBRATION:
             self.calibrate(X_val, Y_val)
         return report
-
-
-def _train_loop(
-    model: ErrorModel,
-    Xs: torch.Tensor,
-    Ys: torch.Tensor,
-    val: tuple[torch.Tensor, torch.Tensor] | None,
-    gen: torch.Generator,
-    max_epochs: int,
-    lr: float,
-    on_epoch: Callable[[int, float], None] | None,
-) -> TrainReport:
-    """Mini-batch Adam; a step whose loss or gradient is not finite is skipped and counted."""
-    cfg = model.train_cfg
-    net = model.net
-    params = list(net.parameters())
-    opt = torch.optim.Adam(params, lr=lr, weight_decay=cfg.weight_decay, foreach=True)
-    sched = torch.optim.lr_scheduler.ReduceLROnPlateau(
-        opt, mode="min", factor=0.75, patience=cfg.patience_lr
-    )
-    start = time.perf_counter()
-    n = Xs.shape[0]
-    bs = min(cfg.batch_size, n)
-    Y_heads = Ys.repeat(1, model.model_cfg.members)  # every member learns every component
-    best, best_epoch, best_state = float("inf"), 0, None
-    history: list[float] = []
-    skipped = 0
-    epoch_loss = float("nan")
-    epoch = 0
-    for epoch in range(1, max_epochs + 1):
-        net.train()
-        perm = torch.randperm(n, generator=gen)
-        total, count = 0.0, 0
-        for i in range(0, n, bs):
-            idx = perm[i : i + bs]
-            gamma, nu, alpha, beta = net(Xs[idx])
-            loss = evidential_loss(Y_heads[idx], gamma, nu, alpha, beta, cfg.lam)
-            opt.zero_grad(set_to_none=True)
-            if not torch.isfinite(loss):
-                skipped += 1
-                continue
-            loss.backward()
-            if not torch.isfinite(torch.nn.utils.clip_grad_norm_(params, _MAX_GRAD_NORM)):
-                skipped += 1
-                continue
-            opt.step()
-            total += float(loss.detach()) * idx.numel()
-            count += idx.numel()
-        epoch_loss = total / count if count else float("nan")
-        if val is not None:
-            score = float(((model.predict_scaled(val[0])[0] - val[1]) ** 2).mean())
-        else:
-            score = epoch_loss
-        history.append(score)
-        if score < best:
-            best, best_epoch = score, epoch
-            if val is not None:
-                best_state = {k: v.detach().clone() for k, v in net.state_dict().items()}
-        sched.step(score if np.isfinite(score) else float("inf"))
-        if on_epoch is not None:
-            on_epoch(epoch, score)
-        if val is not None and epoch - best_epoch >= cfg.early_stop_patience:
-            break
-    if best_state is not None:
-        net.load_state_dict(best_state)
-    model.skipped_steps += skipped
-    net.eval()
-    return TrainReport(
-        epochs=epoch,
-        best_epoch=best_epoch,
-        best_val_mse=best,
-        final_train_loss=epoch_loss,
-        final_lr=opt.param_groups[0]["lr"],
-        skipped_steps=skipped,
-        train_time_s=time.perf_counter() - start,
-        val_mse_history=tuple(history),
-    )
 
 
 def _check_labels(Y: np.ndarray) -> np.ndarray:

@@ -35,6 +35,7 @@ from learner.features import FeatureSpec, feature_spec
 from learner.holdout import HeldOut, MemoryAge, heldout_metrics, holdout_mask
 from learner.model import ErrorModel
 from learner.snapshot import read_metadata, snapshot_from_bytes, snapshot_to_bytes
+from learner.training import Trainer
 from stream.points import point_arrays
 from wire import Batch, Metrics, ModelHeader, RejectedMessageError
 
@@ -56,6 +57,9 @@ class LearnerStageConfig:
     #: A model file to go on from (with its replay memory when its state is beside it); its
     #: frames are re-identified from the first batch, as ``robocal continual --from`` does.
     start_from: str | None = None
+    #: Train in a child process (:mod:`learner.train_process`, about 0.4 GB): the stages keep
+    #: the interpreter and the model trains on another core; the same weights either way.
+    train_process: bool = True
 
     def __post_init__(self) -> None:
         if not (isinstance(self.holdout_every, int) and self.holdout_every >= 2):
@@ -83,6 +87,8 @@ class LearnerCore:
         self.robot = RobotModel(desc)
         self.T_W_0 = None if T_W_0 is None else np.asarray(T_W_0, dtype=float)
         self.learner: ContinualLearner | None = None
+        #: What runs the learner's training loops (None: this thread; the stage: a process).
+        self.trainer: Trainer | None = None
         self.test: HeldOut | None = None
         self._reidentify = False
         if cfg.start_from:
@@ -131,6 +137,8 @@ class LearnerCore:
         X, Y = self.features(batch)
         if not (np.isfinite(X).all() and np.isfinite(Y).all()):
             raise RejectedMessageError("non_finite", f"batch {batch.seq}: non-finite features")
+        if self.learner is not None:
+            self.learner.trainer = self.trainer
         if self._reidentify:  # a carried model's first batch: this cell's frames and trust
             self.learner.carry(X, Y)
             self._reidentify = False
@@ -139,6 +147,7 @@ class LearnerCore:
                 self.spec_for(batch), self.cfg.model, self.cfg.train, self.cfg.seed, self.desc.name
             )
             self.learner = ContinualLearner(model, self.cfg.continual)
+            self.learner.trainer = self.trainer
             self.test = HeldOut(X.shape[1], self.cfg.max_test_points)
         passed = self.learner.screen(X, Y)
         test = holdout_mask(self.n_points, len(X), self.cfg.holdout_every) & passed

@@ -39,6 +39,7 @@ from kinematics.dataset import remove_stale_temporaries
 from kinematics.description import RobotDescription
 from kinematics.errors import SnapshotError
 from learner.continual_records import UpdateMetrics
+from learner.train_process import TrainProcess
 from stream.bus import Received
 from stream.learner_core import LearnerCore, LearnerStageConfig, Update
 from stream.log import JsonLogger
@@ -129,6 +130,8 @@ class LearnerStage(Stage):
             )
             self._publish(self.core.published(0.0, self.core.metrics(float("nan"), 0.0, None)))
             self._weight = {e: s + 1 for e, (s, _) in self.core.windows.items()}
+        self.trainer = TrainProcess(self._train_failed) if cfg.train_process else None
+        self.core.trainer = self.trainer
         self._replay()
         self.answer("model", self._reply_latest)
         self.subscribe("batches")
@@ -303,6 +306,17 @@ class LearnerStage(Stage):
             latest = self.latest
         if latest is not None:
             query.reply(self.key("model"), latest)
+
+    def _train_failed(self, reason: str) -> None:
+        self.log.log("warning", "train_process_failed", robot=self.robot, reason=reason[:300])
+
+    def close(self, timeout_s: float = 60.0) -> BaseException | None:
+        """Close as every stage does, then end the training process."""
+        try:
+            return super().close(timeout_s)
+        finally:
+            if self.trainer is not None:
+                self.trainer.close()
 
     def finish(self) -> None:
         self._checkpoint()

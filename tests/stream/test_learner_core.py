@@ -2,6 +2,7 @@
 quarantined points neither tested nor learned."""
 
 import io
+import os
 import time
 from dataclasses import replace
 
@@ -234,3 +235,40 @@ def test_a_restarted_stage_republishes_under_its_description_name_and_sweeps(bat
     assert restored.model_version == update.header.model_version
     assert not stale.exists() and (tmp_path / ".other.safetensors.k9x2.tmp").exists()
     assert '"event":"stale_temporaries_removed"' in log.getvalue()
+
+
+def test_the_learner_stage_trains_in_its_child_process_as_the_core_does_here(batches):
+    """The stage's updates run in a child interpreter (``train_process``, the default) and give
+    the weights the core gives in this process; closing the stage ends the child."""
+    ds, bs = batches
+    robot, port = ds.meta.robot, free_port()
+    server = open_session(BusConfig.loopback(port, listen=True))
+    client = open_session(BusConfig.loopback(port, listen=False))
+    stage = LearnerStage(server, "cell", robot, load_description(robot), CFG, ds.meta.T_W_0)
+    pid = stage.trainer.pid
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            assert b"learner.train_process" in f.read()
+        time.sleep(0.5)
+        for b in bs[:4]:
+            client.put(key("cell", robot, "batches"), encode(b))
+        deadline = time.monotonic() + 60
+        while not stage.has_learned(0, 3) and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        stage.close(10.0)
+        client.close()
+        server.close()
+    here = core(ds)
+    for b in bs[:4]:
+        here.add_batch(b)
+    assert stage.core.learner.version == here.learner.version == 3
+    pairs = zip(
+        stage.core.learner.model.net.state_dict().values(),
+        here.learner.model.net.state_dict().values(),
+        strict=True,
+    )
+    assert all(torch.equal(a, b) for a, b in pairs)
+    assert stage.trainer.trained >= 3 and stage.trainer.failures == 0
+    with pytest.raises(ChildProcessError):
+        os.waitpid(pid, os.WNOHANG)  # ended and reaped
