@@ -39,18 +39,23 @@ from learner.snapshot import read_metadata, snapshot_from_bytes, snapshot_to_byt
 from learner.training import TrainReport, train_loop
 
 _KEY = "robocal.train"
+#: Failures in a row after which the caller's process trains from then on (a child that cannot
+#: even start would otherwise cost an interpreter start per update).
+MAX_FAILURES_IN_A_ROW = 3
 _ROOT = Path(__file__).resolve().parents[1]  # the child imports this very code
 
 
 class TrainProcess:
     """A :data:`~learner.training.Trainer` whose loop runs in a child process (module
     docstring); one call at a time. ``on_failure(reason)`` hears of a child that ended, died
-    during an update (which then trains here) or failed; ``failures`` counts them."""
+    during an update (which then trains here) or failed; ``failures`` counts them. After
+    :data:`MAX_FAILURES_IN_A_ROW` the caller's process trains from then on."""
 
     def __init__(self, on_failure: Callable[[str], None] | None = None) -> None:
         self.on_failure = on_failure
         self.failures = 0
         self.trained = 0  # training runs the child answered
+        self._in_a_row = 0
         self._lock = threading.Lock()
         self._proc: subprocess.Popen | None = None
         self._closed = False
@@ -109,16 +114,18 @@ class TrainProcess:
             model.net.eval()
             model.skipped_steps += answer["skipped_steps"]
             self.trained += 1
+            self._in_a_row = 0
             return TrainReport(**answer | {"val_mse_history": tuple(answer["val_mse_history"])})
         return train_loop(model, Xs, Ys, val, gen, max_epochs, lr, on_epoch)
 
     def _ask(self, request: bytes) -> bytes | None:
         """The child's reply (a new child if the last one ended), or None if it was lost."""
-        if self._proc is None or self._proc.poll() is not None:
-            if self._closed:
-                return None
-            if self._proc is not None:
-                self._failed(f"training process ended (exit code {self._proc.returncode})")
+        if self._proc is not None and self._proc.poll() is not None:
+            ended, self._proc = self._proc, None
+            self._failed(f"training process ended (exit code {ended.returncode})")
+        if self._closed:
+            return None
+        if self._proc is None:
             self._start()
         proc = self._proc  # close() from another thread may take it meanwhile
         try:
@@ -130,6 +137,8 @@ class TrainProcess:
             reason = "it ended"
         if reply is None:
             proc.kill()
+            if self._proc is proc:
+                self._proc = None
             self._failed(
                 f"training process lost ({reason}, exit code {proc.wait()}); "
                 "this update trains in the caller's process"
@@ -138,6 +147,10 @@ class TrainProcess:
 
     def _failed(self, reason: str) -> None:
         self.failures += 1
+        self._in_a_row += 1
+        if self._in_a_row >= MAX_FAILURES_IN_A_ROW:
+            self.close()
+            reason += f"; {self._in_a_row} failures in a row: training here from now on"
         if self.on_failure is not None:
             self.on_failure(reason)
 

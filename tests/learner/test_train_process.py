@@ -91,15 +91,23 @@ def test_a_child_killed_between_or_during_updates_costs_no_update():
         trainer.close()
 
 
-def test_an_error_in_the_child_is_raised_here_as_training_here_raises_it(trainer):
-    """The child reports the failure; the caller's own run of the loop raises the real error."""
+def test_an_error_in_the_child_is_raised_here_and_three_in_a_row_end_the_child():
+    """The child reports a failure and the caller's own run of the loop raises the real error;
+    after three in a row the caller trains from then on."""
+    reasons: list[str] = []
+    trainer = TrainProcess(on_failure=reasons.append)
     model, X, Y = _model(), *_points(50, 2)
     model.fit(X, Y, max_epochs=2)
-    before = trainer.failures
     bad = torch.zeros((10, 3))  # the wrong number of inputs
-    with pytest.raises(RuntimeError):
-        trainer(model, bad, torch.zeros((10, 6)), None, torch.Generator(), 2, 1e-3)
-    assert trainer.failures == before + 1
+    for _ in range(3):
+        with pytest.raises(RuntimeError):
+            trainer(model, bad, torch.zeros((10, 6)), None, torch.Generator(), 2, 1e-3)
+    assert trainer.failures == 3 and "RuntimeError" in reasons[0]
+    assert trainer.pid is None and "from now on" in reasons[2]
+    here, there, (X, Y) = _model(), _model(), _points(100, 3)
+    here.fit(X, Y, max_epochs=5)
+    there.fit(X, Y, max_epochs=5, trainer=trainer)
+    assert _same_weights(here, there) and trainer.trained == 0
 
 
 def test_close_ends_the_child_and_later_fits_train_here():
