@@ -47,14 +47,14 @@ TINY = SearchSpace(
     hidden_layers=(1, 2),
     neurons=(4, 16),
     batch_size=(8, 32),
-    lr=(1e-6, 1e-2),
+    lr=(1e-3, 1e-2),
     weight_decay=(1e-7, 1e-3),
 )
 TINY_TOML = """
 hidden_layers = [1, 2]
 neurons = [4, 16]
 batch_size = [8, 32]
-lr = [1e-6, 1e-2]
+lr = [1e-3, 1e-2]
 weight_decay = [1e-7, 1e-3]
 """
 
