@@ -2,13 +2,13 @@
 
 The sim ``paper`` campaign (Fanuc M-900iB/700, every effect) is streamed by a
 :class:`~stream.sources.SimCellSource` over a loopback Zenoh link into a daemon running the
-window, learner, compensation, dashboard and recorder stages. Every tenth point is held out by
-the learner stage; the demo reports the uncalibrated error and the learned model's error on
-those held-out points (the newest model fetched by query), and asks the compensation service
-for corrected commands of held-out poses, scored on the simulator's true robot. It writes
-``robocal.rrd``, ``robocal.mcap`` (or the next free ``robocal.N.*``: recordings are never
-overwritten) and the JSON-lines log ``robocal.log.jsonl`` into ``out``, and reports the paths it
-wrote.
+window, learner (training in a child process of its own), compensation, dashboard and recorder
+stages. Every tenth point is held out by the learner stage; the demo reports the uncalibrated
+error and the learned model's error on those held-out points (the newest model fetched by
+query), and asks the compensation service for corrected commands of held-out poses, scored on
+the simulator's true robot. It writes ``robocal.rrd``, ``robocal.mcap`` (or the next free
+``robocal.N.*``: recordings are never overwritten) and the JSON-lines log ``robocal.log.jsonl``
+into ``out``, and reports the paths it wrote.
 """
 
 from __future__ import annotations
