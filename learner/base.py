@@ -36,11 +36,7 @@ import numpy as np
 import pandas as pd
 
 from kinematics.calibration import (
-    CalibrationConfig,
-    GeometricFrames,
-    apply_calibration,
     calibrate,
-    identifiable,
 )
 from kinematics.dataset import (
     Dataset,
@@ -50,15 +46,13 @@ from kinematics.dataset import (
     temperature_name,
 )
 from kinematics.description import RobotDescription
-from kinematics.effects import Conditions, Effect, Perturbation, perturbed_poses
+from kinematics.effects import Conditions, Effect, perturbed_poses
 from kinematics.errors import ConfigError, IdentifiabilityError
 from kinematics.gap.model_file import EffectEntry, ModelFile, load_model_file
 from kinematics.gap.workflow import run_gap
-from kinematics.identification.conditions import observations_from_dataset
-from kinematics.identification.fitting import fit_effects, jacobian
 from kinematics.model import RobotModel
 from kinematics.transforms import apply_error, invert, pose_error, xyz_quat_from_transform
-from learner.config import BASE_KINDS, DEFAULT_BASE, FRAME_PRIOR_MM
+from learner.config import BASE_KINDS, DEFAULT_BASE
 from learner.features import FeatureSpec
 
 #: Points ``auto`` identifies the geometric base from (the first of the stream).
@@ -85,6 +79,10 @@ class PhysicsBase:
     note: str = ""
     condition: float = float("nan")
     on_nominal: bool = False
+    #: After frames re-identified on few points (:func:`learner.carry.reidentify_frames`): the
+    #: frames one standard deviation out along each principal axis of their posterior,
+    #: ``(r, 2, 4, 4)``, each ``T_0_B`` and tool; None otherwise.
+    frame_sigma: np.ndarray | None = None
 
     @cached_property
     def model(self) -> RobotModel:
@@ -108,6 +106,23 @@ class PhysicsBase:
             return np.zeros((np.shape(X)[0], 6))
         T_nominal = perturbed_poses(nominal, _conditions(spec, X), [])
         return pose_error(self.poses(spec, X), T_nominal)
+
+    def frame_variance(self, spec: FeatureSpec, X: np.ndarray, nominal: RobotModel) -> np.ndarray:
+        """The variance ``(N, 6)`` (m², rad²) of :meth:`error` at ``X`` that the frames'
+        uncertainty gives (linearised along :attr:`frame_sigma`); zeros without it."""
+        variance = np.zeros((np.shape(X)[0], 6))
+        if self.frame_sigma is not None:
+            error = self.error(spec, X, nominal)
+            for base in self._sigma_bases:
+                variance += (base.error(spec, X, nominal) - error) ** 2
+        return variance
+
+    @cached_property
+    def _sigma_bases(self) -> list[PhysicsBase]:
+        return [
+            replace(self, description=self.description.with_tool(tool), T_0_B=T, frame_sigma=None)
+            for T, tool in self.frame_sigma
+        ]
 
     @cached_property
     def _blocks(self) -> list[tuple[Effect, np.ndarray]]:
@@ -223,118 +238,6 @@ def _model_base(kind: str, model: ModelFile, T_0_B: np.ndarray, note: str) -> Ph
     )
 
 
-def reidentify_frames(
-    base: PhysicsBase,
-    spec: FeatureSpec,
-    X: np.ndarray,
-    Y: np.ndarray,
-    offsets: bool = False,
-    *,
-    residual: np.ndarray | None = None,
-    prior_m: float | None = FRAME_PRIOR_MM * 1e-3,
-) -> PhysicsBase:
-    """The base with ``T_0_B``, its tool and (``offsets``) the joint offsets re-identified from
-    ``X, Y`` (a new day's first points), the rest of its kinematics and its effects held: the
-    tracker moved, the tool was re-mounted, an encoder was re-referenced. Only the parameters
-    these points identify are fitted (pivoted QR, as in calibration), as a MAP estimate under a
-    prior centred on the base's own frames (``prior_m``, m: :data:`~learner.config.FRAME_PRIOR_MM`
-    by default; ``None``: least squares).
-    ``residual`` (N, 6), what the network adds to the base at ``X``, is taken off the labels
-    first, so the frames are fitted to what the base should explain. A nominal base becomes a
-    ``frames`` base. Offsets are off by default: from a new day's first 10-100 UR10 points
-    they fold local pose error into the encoders (B -> A: 2.76 mm with them, 0.73 mm without,
-    BENCHMARKS.md "Real UR10")."""
-    desc = base.description
-    n = desc.n_joints
-    Y = np.asarray(Y, dtype=float) - (0.0 if residual is None else residual)
-    obs = observations_from_dataset(measured_dataset(spec, X, Y), desc)
-    obs = replace(obs, T_W_0=base.T_0_B)
-    free = tuple(5 * i + 4 for i in range(n)) if offsets else ()
-    free += tuple(range(5 * n, 5 * n + 12))
-    held = [(_Held(e, p), np.zeros(0)) for e, p in base.blocks()]
-    candidate = GeometricFrames(desc, free)
-    J = jacobian(base.model, obs, [(candidate, np.zeros(len(free))), *held], 1.0, only=0)
-    kept = identifiable(J, candidate.parameter_names(desc), CalibrationConfig().rank_rtol)
-    frames = GeometricFrames(desc, tuple(free[i] for i in kept.kept_index))
-    prior_std = None
-    if prior_m is not None:  # each parameter: what moves the tool by prior_m (RMS) here
-        moved = J[:, list(kept.kept_index)].reshape(len(X), 6, -1)  # rad count as m (1 m lever)
-        prior_std = prior_m / np.sqrt(np.mean(np.sum(moved**2, axis=1), axis=0))
-    blocks = [(frames, np.zeros(len(kept.kept))), *held]
-    fit = fit_effects(base.model, obs, blocks, prior_std=prior_std)
-    calibrated, T_0_B = apply_calibration(desc, obs.T_W_0, frames.full(fit.params[0]))
-    kind = "frames" if base.kind == "nominal" else base.kind
-    return replace(base, kind=kind, description=calibrated, T_0_B=T_0_B)
-
-
-#: How many times the first points' residual (position RMS under the loose prior's frames) the
-#: frames must have moved (position RMS of the change over those points) before the carry
-#: takes them as moved. A new day's local error fakes a move about its own size (UR10 A <-> B,
-#: 10-100 points: 1.0-5.1 x); a tracker moved by 2 mm shows 34-73 x on the simulated cell,
-#: 116-131 x on random arms whose base explains the rest, 5.3-15 x on random arms that leave
-#: 0.3 mm. Missing a move costs mm, a false one about 0.1 mm (BENCHMARKS.md).
-MOVE_EVIDENCE = 5.0
-
-
-def carried_frames(
-    base: PhysicsBase,
-    spec: FeatureSpec,
-    X: np.ndarray,
-    Y: np.ndarray,
-    residual: np.ndarray,
-    prior_m: float,
-    moved_prior_m: float,
-) -> tuple[PhysicsBase, bool]:
-    """A carried base's frames from a new day's first points ``X, Y`` (``residual``: what the
-    network adds there) and whether they moved: held near the old ones (``prior_m``) unless
-    the points show that the tracker or tool moved: frames fitted under the loose
-    ``moved_prior_m`` move the predicted positions by more than :data:`MOVE_EVIDENCE` times
-    what they leave unexplained. The base's note says which and why."""
-    nominal = RobotModel(spec.description)
-    before = base.error(spec, X, nominal)[:, :3]
-    moved = reidentify_frames(base, spec, X, Y, residual=residual, prior_m=moved_prior_m)
-    after = moved.error(spec, X, nominal)[:, :3]
-    shift = float(np.sqrt(np.mean(np.sum((after - before) ** 2, axis=1))))
-    left = np.asarray(Y, dtype=float)[:, :3] - residual[:, :3] - after
-    rms = float(np.sqrt(np.mean(np.sum(left**2, axis=1))))
-    is_moved = shift > MOVE_EVIDENCE * rms
-    if not is_moved and prior_m != moved_prior_m:
-        moved = reidentify_frames(base, spec, X, Y, residual=residual, prior_m=prior_m)
-    note = (
-        f"frames {'moved' if is_moved else 'held'} on {len(X)} new points (a free move of "
-        f"{1e3 * shift:.3f} mm against {1e3 * rms:.3f} mm left)"
-    )
-    return replace(moved, note=f"{base.note}; {note}" if base.note else note), is_moved
-
-
-def held_out_labels(
-    base: PhysicsBase,
-    spec: FeatureSpec,
-    X: np.ndarray,
-    Y: np.ndarray,
-    residual: np.ndarray,
-    prior_m: float,
-    fitted: PhysicsBase,
-    folds: int = 5,
-) -> np.ndarray:
-    """``Y`` moved so that ``fitted`` (frames re-identified on all of ``X, Y``) leaves at each
-    point what frames fitted without that point's fold leave: calibrating intervals on them
-    measures how far the frames miss points they were not fitted to, not how well they fit
-    their own (on 10 points the second is far smaller). Fewer than 2 points: ``Y`` as it is."""
-    out = np.array(Y, dtype=float)
-    if len(X) < 2:
-        return out
-    nominal = RobotModel(spec.description)
-    out += fitted.error(spec, X, nominal)
-    for fold in np.array_split(np.arange(len(X)), min(folds, len(X))):
-        rest = np.setdiff1d(np.arange(len(X)), fold)
-        without = reidentify_frames(
-            base, spec, X[rest], Y[rest], residual=residual[rest], prior_m=prior_m
-        )
-        out[fold] -= without.error(spec, X[fold], nominal)
-    return out
-
-
 def make_base(
     base: str, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray, frame: np.ndarray | None = None
 ) -> PhysicsBase:
@@ -343,19 +246,6 @@ def make_base(
     if str(base).endswith(".toml"):
         return file_base(base, spec, np.eye(4) if frame is None else frame)
     return identify_base(base, spec, X, Y)
-
-
-class _Held(Effect):
-    """An effect held at known parameters while others are fitted (no free parameters)."""
-
-    def __init__(self, effect: Effect, params: np.ndarray) -> None:
-        self.effect, self.params, self.name = effect, params, effect.name
-
-    def parameter_names(self, desc: RobotDescription) -> tuple[str, ...]:
-        return ()
-
-    def perturbation(self, model: RobotModel, params: np.ndarray, cond: Conditions) -> Perturbation:
-        return self.effect.perturbation(model, self.params, cond)
 
 
 def check_same_robot(desc: RobotDescription, nominal: RobotDescription, what: str) -> None:
@@ -384,12 +274,10 @@ __all__ = [
     "BASE_KINDS",
     "DEFAULT_BASE",
     "PhysicsBase",
-    "carried_frames",
     "check_same_robot",
     "data_frame",
     "gap_base",
     "identify_base",
     "make_base",
     "nominal_base",
-    "reidentify_frames",
 ]

@@ -28,7 +28,7 @@ BASE_KINDS = ("nominal", "geometric", "auto", "gap")
 STREAM_BASE_KINDS = ("nominal", "geometric", "auto")
 #: The base that measured best on real data (BENCHMARKS.md, "Real UR10").
 DEFAULT_BASE = "geometric"
-#: Prior of a re-identified frame parameter (:func:`learner.base.reidentify_frames`): a
+#: Prior of a re-identified frame parameter (:func:`learner.carry.reidentify_frames`): a
 #: Gaussian whose std moves the tool pose by this much (mm, RMS over the new points; rotations
 #: on a 1 m lever), weighed against what a free fit of the frames leaves (``s_p``), so the
 #: source's frames count as about ``(s_p / FRAME_PRIOR_MM)²`` points. A new day's first
@@ -38,7 +38,7 @@ DEFAULT_BASE = "geometric"
 #: 0.57 mm).
 FRAME_PRIOR_MM = 0.03
 #: The prior once the first points show that the tracker or tool moved
-#: (:func:`learner.base.carried_frames`): held at 0.03 mm, a tracker moved by 2 mm is 1.87 mm
+#: (:func:`learner.carry.carried_frames`): held at 0.03 mm, a tracker moved by 2 mm is 1.87 mm
 #: off after 10 points and 0.25 mm after 100 in the simulated cell, at 0.3 mm 0.12 / 0.09 mm.
 #: A base that explains the local error itself may take it from the start (A's gap model as
 #: the base: UR10 A -> B 0.39 mm at 0.3 against 0.65 mm at 0.03). BENCHMARKS.md, "Frame prior
@@ -208,7 +208,7 @@ class ContinualConfig:
     are too few to identify it.
     ``frame_prior_mm`` is how far a carried base's frames may move on a new day's first
     points, ``moved_frame_prior_mm`` how far when those points show that the tracker or tool
-    moved (:meth:`ContinualLearner.carry`, :func:`learner.base.carried_frames`).
+    moved (:meth:`ContinualLearner.carry`, :func:`learner.carry.carried_frames`).
     ``aci_rate`` is the step of the adaptive conformal interval scale per new point outside
     (or inside) the ``aci_level`` interval, in log units (0 turns it off; it never narrows
     the intervals below the held-out calibration, :mod:`learner.conformal`). ``quarantine``

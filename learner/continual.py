@@ -33,7 +33,8 @@ import torch
 
 from kinematics.errors import DatasetError, SnapshotError
 from kinematics.model import RobotModel
-from learner.base import PhysicsBase, carried_frames, held_out_labels, identify_base, nominal_base
+from learner.base import PhysicsBase, identify_base, nominal_base
+from learner.carry import carried_frames, held_out_labels
 from learner.config import ContinualConfig
 from learner.conformal import adapt_log_scale
 from learner.continual_base import due, memory_base
@@ -230,11 +231,11 @@ class ContinualLearner:
 
     def carry(self, X: np.ndarray, Y: np.ndarray) -> float:
         """Start a new day or cell from its first points ``X, Y``: re-identify the base's frames
-        (:func:`learner.base.carried_frames`), empty the held-out set (another day's) and fit the
+        (:func:`learner.carry.carried_frames`), empty the held-out set (another day's) and fit the
         carried network's gain on these points (:meth:`ErrorModel.weigh_residual`); returns it.
         Gain and scale are re-fitted on the day's held-out points once :data:`MIN_DAY_POINTS`
         are there; until then the model's scale stands, or if the frames moved, no narrower than
-        these points show to frames fitted without them (:func:`learner.base.held_out_labels`)."""
+        these points show to frames fitted without them (:func:`learner.carry.held_out_labels`)."""
         X, Y = self._check(X, Y)
         spec, residual = self.model.spec, self.model.residual(X)
         priors = self.cfg.frame_prior_mm * 1e-3, self.cfg.moved_frame_prior_mm * 1e-3

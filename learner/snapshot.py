@@ -71,6 +71,8 @@ def snapshot_to_bytes(model: ErrorModel, extra_meta: dict | None = None) -> byte
     if base is not None:
         tensors["base_T_0_B"] = torch.as_tensor(np.array(base.T_0_B, dtype=np.float64))
         tensors["base_tool"] = torch.as_tensor(np.array(base.description.tool))  # never shared
+        if base.frame_sigma is not None:
+            tensors["base_frame_sigma"] = torch.as_tensor(np.asarray(base.frame_sigma, np.float64))
     meta = {
         "schema": SCHEMA,
         "version": SCHEMA_VERSION,
@@ -201,7 +203,19 @@ def _base_from_meta(meta: dict | None, tensors: dict) -> PhysicsBase | None:
         note=note,
         condition=float("nan") if condition is None else float(condition),
         on_nominal=bool(meta.get("on_nominal", note.startswith("nominal:"))),
+        frame_sigma=_frame_sigma(tensors),
     )
+
+
+def _frame_sigma(tensors: dict) -> np.ndarray | None:
+    """The ``base_frame_sigma`` tensor ``(r, 2, 4, 4)``; None when absent (a base whose frames
+    were not re-identified, or a snapshot written before it existed)."""
+    if "base_frame_sigma" not in tensors:
+        return None
+    sigma = tensors["base_frame_sigma"].numpy()
+    if sigma.ndim != 4 or sigma.shape[1:] != (2, 4, 4):
+        raise SnapshotError(f"base_frame_sigma has shape {sigma.shape}, expected (r, 2, 4, 4)")
+    return sigma
 
 
 def _legacy_condition(note: str) -> float | None:

@@ -7,12 +7,8 @@ from kinematics.errors import ConfigError
 from kinematics.importers.ipa import import_series
 from kinematics.model import RobotModel
 from kinematics.transforms import apply_error, pose_error
-from learner.base import (
-    identify_base,
-    make_base,
-    nominal_base,
-    reidentify_frames,
-)
+from learner.base import identify_base, make_base, nominal_base
+from learner.carry import reidentify_frames
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from learner.continual import ContinualLearner
 from learner.continual_base import memory_base
@@ -251,7 +247,7 @@ def test_a_gap_model_file_serves_as_a_base_without_the_effects_features_cannot_d
 
 
 def test_the_carry_follows_a_moved_tracker_and_holds_the_frames_of_an_unmoved_one(points):
-    """``learner.base.carried_frames``: a tracker moved by 2 mm / 2 mrad and a tool by
+    """``learner.carry.carried_frames``: a tracker moved by 2 mm / 2 mrad and a tool by
     1 mm / 1 mrad are taken as moved (the loose prior) and followed; the same day's points
     leave the frames held; equal priors leave no choice."""
     p = points

@@ -1,5 +1,5 @@
 """A new day's frames re-identified as a MAP estimate: held near the source's where the first
-points cannot tell, moved where they show it (:func:`learner.base.reidentify_frames`)."""
+points cannot tell, moved where they show it (:func:`learner.carry.reidentify_frames`)."""
 
 import numpy as np
 import pytest
@@ -9,7 +9,8 @@ from kinematics.identification.conditions import observations_from_dataset
 from kinematics.identification.fitting import fit_effects
 from kinematics.importers.ipa import import_series
 from kinematics.model import RobotModel
-from learner.base import held_out_labels, identify_base, measured_dataset, reidentify_frames
+from learner.base import identify_base, measured_dataset
+from learner.carry import held_out_labels, reidentify_frames
 from learner.workflow import prepare
 from tests.learner.conftest import make_dataset
 from tests.learner.test_base import _frame, _moved, _position_mm
