@@ -107,12 +107,19 @@ class PhysicsBase:
         T_nominal = perturbed_poses(nominal, _conditions(spec, X), [])
         return pose_error(self.poses(spec, X), T_nominal)
 
-    def frame_variance(self, spec: FeatureSpec, X: np.ndarray, nominal: RobotModel) -> np.ndarray:
-        """The variance ``(N, 6)`` (m², rad²) of :meth:`error` at ``X`` that the frames'
-        uncertainty gives (linearised along :attr:`frame_sigma`); zeros without it."""
+    def frame_variance(
+        self,
+        spec: FeatureSpec,
+        X: np.ndarray,
+        nominal: RobotModel,
+        error: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """The variance ``(N, 6)`` (m², rad²) of :meth:`error` at ``X`` (given, if computed
+        already) that the frames' uncertainty gives, linearised along :attr:`frame_sigma`;
+        zeros without it."""
         variance = np.zeros((np.shape(X)[0], 6))
         if self.frame_sigma is not None:
-            error = self.error(spec, X, nominal)
+            error = self.error(spec, X, nominal) if error is None else error
             for base in self._sigma_bases:
                 variance += (base.error(spec, X, nominal) - error) ** 2
         return variance

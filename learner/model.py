@@ -197,17 +197,20 @@ class ErrorModel:
         if self.label_std is not None:  # the residual's prior N(mean, std²) meets the network's
             epistemic = beta * std**2 / (nu * (alpha - 1.0))
             residual = mean + (std**2 / (std**2 + epistemic)) * (residual - mean)
-        beta = (beta * std**2 + self._frame_beta(X, nu, alpha)) * self.interval_scale**2
-        gamma = self.residual_gain * residual + self.base_error(X)
+        base = self.base_error(X)
+        beta = (beta * std**2 + self._frame_beta(X, base, nu, alpha)) * self.interval_scale**2
+        gamma = self.residual_gain * residual + base
         return Evidential(gamma=gamma, nu=nu, alpha=alpha, beta=beta)
 
-    def _frame_beta(self, X: np.ndarray, nu: np.ndarray, alpha: np.ndarray) -> np.ndarray:
-        """What the base frames' uncertainty (:meth:`PhysicsBase.frame_variance`, after a new
-        day's re-identification) adds to ``beta``: its variance added to the Student-t
-        predictive variance ``beta (1 + nu) / (nu (alpha - 1))`` (label units²)."""
+    def _frame_beta(
+        self, X: np.ndarray, base: np.ndarray, nu: np.ndarray, alpha: np.ndarray
+    ) -> np.ndarray:
+        """What the base frames' uncertainty (:meth:`PhysicsBase.frame_variance` around the base's
+        error ``base``, after a new day's re-identification) adds to ``beta``: its variance added
+        to the Student-t predictive variance ``beta (1 + nu) / (nu (alpha - 1))`` (label units²)."""
         if self.base is None or self.base.frame_sigma is None:
             return np.zeros_like(nu)
-        variance = self.base.frame_variance(self.spec, X, self._nominal_model())
+        variance = self.base.frame_variance(self.spec, X, self._nominal_model(), base)
         return variance * nu * (alpha - 1.0) / (1.0 + nu)
 
     def residual(self, X: np.ndarray) -> np.ndarray:
