@@ -35,9 +35,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from kinematics.calibration import (
-    calibrate,
-)
+from kinematics.calibration import calibrate
 from kinematics.dataset import (
     Dataset,
     DatasetMeta,

@@ -137,8 +137,6 @@ class LearnerCore:
         X, Y = self.features(batch)
         if not (np.isfinite(X).all() and np.isfinite(Y).all()):
             raise RejectedMessageError("non_finite", f"batch {batch.seq}: non-finite features")
-        if self.learner is not None:
-            self.learner.trainer = self.trainer
         if self._reidentify:  # a carried model's first batch: this cell's frames and trust
             self.learner.carry(X, Y)
             self._reidentify = False
@@ -147,7 +145,6 @@ class LearnerCore:
                 self.spec_for(batch), self.cfg.model, self.cfg.train, self.cfg.seed, self.desc.name
             )
             self.learner = ContinualLearner(model, self.cfg.continual)
-            self.learner.trainer = self.trainer
             self.test = HeldOut(X.shape[1], self.cfg.max_test_points)
         passed = self.learner.screen(X, Y)
         test = holdout_mask(self.n_points, len(X), self.cfg.holdout_every) & passed
@@ -157,6 +154,7 @@ class LearnerCore:
         self.n_points += len(X)
         self.last_seq = batch.seq
         version = self.learner.version
+        self.learner.trainer = self.trainer  # however the learner came: new, file, checkpoint
         m = self.learner.update(X[train], Y[train], screened=True)
         self.last_step = replace(m, quarantined=int((~passed).sum()))
         if self.learner.version == version:
