@@ -31,23 +31,24 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from kinematics.errors import DatasetError, SnapshotError
+from kinematics.errors import DatasetError
 from kinematics.model import RobotModel
 from learner.base import PhysicsBase, identify_base, nominal_base
-from learner.carry import carried_frames, held_out_labels
+from learner.carry import CarriedDay, carried_frames, held_out_labels
 from learner.config import ContinualConfig
 from learner.conformal import adapt_log_scale
 from learner.continual_base import due, memory_base
 from learner.continual_records import Memory, UpdateMetrics
 from learner.continual_state import (  # noqa: F401
     STATE_SCHEMA,
+    learner_state,
+    restore_learner,
     state_from_bytes,
     state_path,
     state_to_bytes,
 )
 from learner.model import MIN_CALIBRATION, ErrorModel
 from learner.quarantine import QuarantineState, holdout_mm, model_residuals, screen, withhold
-from learner.quarantine import state_from_dict as quarantine_from_dict
 from learner.replay import replay_strategy
 from learner.snapshot import load_snapshot, snapshot_from_bytes, snapshot_to_bytes
 from learner.training import Trainer, TrainReport
@@ -78,6 +79,7 @@ class ContinualLearner:
         self.n_withheld = 0
         #: A carried model's interval scale (no ACI) while its day is young (:meth:`carry`).
         self.day_scale: np.ndarray | None = None
+        self.day: CarriedDay | None = None  # a carried day's points, its frames fitted again
         self.trainer: Trainer | None = None  # runs its fits (None: here; stream: a process)
         if model.is_fitted:  # a trained model (a snapshot) goes on learning with an empty memory
             self.trained = _copy(model)
@@ -155,6 +157,7 @@ class ContinualLearner:
         self._cal_x = np.concatenate([self._cal_x, X_new[held]])[-keep_last:]
         self._cal_y = np.concatenate([self._cal_y, Y_new[held]])[-keep_last:]
         X_new, Y_new = X_new[~held], Y_new[~held]
+        self._follow_day(X_new, Y_new)
         pool_x = np.concatenate([self._mem_x, X_new])
         pool_y = np.concatenate([self._mem_y, Y_new])
         pred = self.trained.predict(pool_x).gamma
@@ -235,11 +238,12 @@ class ContinualLearner:
         carried network's gain on these points (:meth:`ErrorModel.weigh_residual`); returns it.
         Gain and scale are re-fitted on the day's held-out points once :data:`MIN_DAY_POINTS`
         are there; until then the model's scale stands, or if the frames moved, no narrower than
-        these points show to frames fitted without them (:func:`learner.carry.held_out_labels`)."""
+        these points show to frames fitted without them (:func:`learner.carry.held_out_labels`).
+        The day's trained points are kept to fit its frames again (:class:`CarriedDay`)."""
         X, Y = self._check(X, Y)
-        spec, residual = self.model.spec, self.model.residual(X)
-        priors = self.cfg.frame_prior_mm * 1e-3, self.cfg.moved_frame_prior_mm * 1e-3
+        spec, residual, priors = self.model.spec, self.model.residual(X), self._frame_priors
         old, (base, moved) = self.base, carried_frames(self.base, spec, X, Y, residual, *priors)
+        self.day = CarriedDay.start(old, len(X), spec.n_features)
         self.rebase(base)
         self._cal_x, self._cal_y = self._cal_x[:0], self._cal_y[:0]
         self.trained.residual_gain = self.model.weigh_residual(X, Y)
@@ -250,14 +254,37 @@ class ContinualLearner:
         self.day_scale = scale / np.exp(self.aci_log_scale)
         return self.trained.residual_gain
 
-    def rebase(self, base: PhysicsBase) -> None:
+    @property
+    def _frame_priors(self) -> tuple[float, float]:
+        return self.cfg.frame_prior_mm * 1e-3, self.cfg.moved_frame_prior_mm * 1e-3
+
+    def rebase(self, base: PhysicsBase, keep: np.ndarray | None = None) -> None:
         """Put both models on a new physics base (e.g. frames re-identified on a new day); the
-        memory's labels move with it so that each point keeps its residual."""
+        memory's labels move with it so that each point keeps its residual, but for the memory
+        points ``keep`` marks (measured in the new frames already) and the held-out set then."""
         nominal = RobotModel(self.model.spec.description)
-        for x, y in ((self._mem_x, self._mem_y), (self._cal_x, self._cal_y)):
-            y += base.error(self.model.spec, x, nominal) - self.trained.base_error(x)
+        moves = [(self._mem_x, self._mem_y, keep), (self._cal_x, self._cal_y, None)]
+        for x, y, kept in moves[: 1 if keep is not None else 2]:
+            shift = base.error(self.model.spec, x, nominal) - self.trained.base_error(x)
+            y += shift if kept is None else np.where(kept[:, None], 0.0, shift)
         for model in (self.model, self.trained):
             model.base = base
+
+    def _follow_day(self, X: np.ndarray, Y: np.ndarray) -> None:
+        """Add a carried day's trained points; when they have doubled, fit its frames again on
+        all of them from the frames it was carried from (:class:`CarriedDay`)."""
+        if self.day is None:
+            return
+        limit = self.cfg.day_frame_points
+        day = self.day = self.day.add(X, Y, limit)
+        if not day.due(limit):
+            return
+        spec, residual = self.model.spec, self.model.residual(day.x)
+        base, _ = carried_frames(
+            day.source(self.base), spec, day.x, day.y, residual, *self._frame_priors
+        )
+        self.rebase(base, keep=day.holds(self._mem_x))
+        self.day = replace(day, fitted=len(day.x))
 
     def _adapt_intervals(self, X: np.ndarray, Y: np.ndarray) -> None:
         """Adaptive conformal inference on the interval scale, point by point in stream order
@@ -334,55 +361,12 @@ class ContinualLearner:
     # -- persistence ---------------------------------------------------------------------------
 
     def state_dict(self) -> dict:
-        """Everything a restart needs: memory, counters, rng state, the published and the
-        trained model's snapshots."""
-        return {
-            "memory_x": self._mem_x.copy(),
-            "memory_y": self._mem_y.copy(),
-            "holdout_x": self._cal_x.copy(),
-            "holdout_y": self._cal_y.copy(),
-            "aci_log_scale": self.aci_log_scale.copy(),
-            "n_seen": self.n_seen,
-            "version": self.version,
-            "n_withheld": self.n_withheld,
-            **({} if self.day_scale is None else {"day_scale": self.day_scale.copy()}),
-            **self.quarantine.to_dict(),
-            "rng": self.rng.bit_generator.state,
-            "model": snapshot_to_bytes(self.model),
-            "trained": snapshot_to_bytes(self.trained),
-        }
+        """Everything a restart needs (:func:`learner.continual_state.learner_state`)."""
+        return learner_state(self)
 
     def load_state(self, state: dict) -> None:
         """Continue from a :meth:`state_dict` (the models are replaced by the stored ones)."""
-        try:
-            model = snapshot_from_bytes(state["model"])
-            # States written before the average existed trained the model they published.
-            trained = snapshot_from_bytes(state.get("trained", state["model"]))
-            mem_x = np.asarray(state["memory_x"], dtype=float)
-            mem_y = np.asarray(state["memory_y"], dtype=float)
-            # States written before the calibration set existed restart with an empty one.
-            cal_x = np.asarray(state.get("holdout_x", mem_x[:0]), dtype=float)
-            cal_y = np.asarray(state.get("holdout_y", mem_y[:0]), dtype=float)
-            aci = np.asarray(state.get("aci_log_scale", np.zeros(6)), dtype=float)
-            n_seen, version = int(state["n_seen"]), int(state["version"])
-            rng_state = state["rng"]
-            quarantine, n_withheld = quarantine_from_dict(state), int(state.get("n_withheld", 0))
-            day_scale = state.get("day_scale")
-        except (KeyError, TypeError, ValueError) as exc:
-            raise SnapshotError(f"continual state is incomplete: {exc}") from None
-        if model.feature_names != self.model.feature_names:
-            raise SnapshotError(
-                f"continual state features {model.feature_names} differ from the learner's "
-                f"{self.model.feature_names}"
-            )
-        self.model, self.trained = model, trained
-        self._mem_x, self._mem_y = mem_x, mem_y
-        self._cal_x, self._cal_y = cal_x, cal_y
-        self.aci_log_scale = aci
-        self.n_seen, self.version = n_seen, version
-        self.quarantine, self.n_withheld = quarantine, n_withheld
-        self.day_scale = None if day_scale is None else np.asarray(day_scale, dtype=float)
-        self.rng.bit_generator.state = rng_state
+        restore_learner(self, state)
 
 
 def _copy(model: ErrorModel) -> ErrorModel:

@@ -1,6 +1,7 @@
-"""A continual learner's state as bytes: memory, held-out set and quarantine history as
-safetensors tensors, counters, rng state and the two model snapshots (hex) as JSON metadata.
-Nothing is pickled. :meth:`learner.continual.ContinualLearner.state_dict` builds the dict.
+"""A continual learner's state as bytes: memory, held-out set, a carried day's points and
+quarantine history as safetensors tensors, counters, rng state and the two model snapshots
+(hex) as JSON metadata. Nothing is pickled. :func:`learner_state` builds the dict from a
+:class:`~learner.continual.ContinualLearner`, :func:`restore_learner` puts it back.
 """
 
 from __future__ import annotations
@@ -14,7 +15,9 @@ from safetensors.numpy import load as np_load
 from safetensors.numpy import save as np_save
 
 from kinematics.errors import SnapshotError
-from learner.snapshot import read_metadata
+from learner.carry import CarriedDay
+from learner.quarantine import state_from_dict as quarantine_from_dict
+from learner.snapshot import read_metadata, snapshot_from_bytes, snapshot_to_bytes
 
 
 def state_path(model_path: str | Path) -> Path:
@@ -24,6 +27,7 @@ def state_path(model_path: str | Path) -> Path:
 
 
 STATE_SCHEMA = "robocal.continual"
+_META = ("n_withheld", "quarantine_meta", "day_fitted", "day_note")
 
 
 def state_to_bytes(state: dict) -> bytes:
@@ -36,7 +40,7 @@ def state_to_bytes(state: dict) -> bytes:
         "rng": state["rng"],
         "model": state["model"].hex(),
         "trained": state["trained"].hex(),
-        **{k: state[k] for k in ("n_withheld", "quarantine_meta") if k in state},
+        **{k: state[k] for k in _META if k in state},
     }
     keys = (
         "memory_x",
@@ -47,6 +51,9 @@ def state_to_bytes(state: dict) -> bytes:
         "day_scale",
         "quarantine_labels",
         "quarantine_residuals",
+        "day_x",
+        "day_y",
+        "day_frames",
     )
     arrays = {k: np.ascontiguousarray(state[k]) for k in keys if k in state}
     return np_save(arrays, metadata={"robocal": json.dumps(meta)})
@@ -64,8 +71,73 @@ def state_from_bytes(data: bytes) -> dict:
         return {
             **arrays,
             **{k: meta[k] for k in ("n_seen", "version", "rng")},
-            **{k: meta[k] for k in ("n_withheld", "quarantine_meta") if k in meta},
+            **{k: meta[k] for k in _META if k in meta},
             **{k: bytes.fromhex(meta[k]) for k in ("model", "trained") if k in meta},
         }
     except (SafetensorError, ValueError, KeyError, TypeError) as exc:
         raise SnapshotError(f"continual state unreadable: {exc}") from None
+
+
+def learner_state(learner) -> dict:
+    """Everything a restart of ``learner`` needs: memory, held-out set, a carried day's points,
+    counters, rng state, the published and the trained model's snapshots."""
+    day = learner.day
+    return {
+        "memory_x": learner._mem_x.copy(),
+        "memory_y": learner._mem_y.copy(),
+        "holdout_x": learner._cal_x.copy(),
+        "holdout_y": learner._cal_y.copy(),
+        "aci_log_scale": learner.aci_log_scale.copy(),
+        "n_seen": learner.n_seen,
+        "version": learner.version,
+        "n_withheld": learner.n_withheld,
+        **({} if learner.day_scale is None else {"day_scale": learner.day_scale.copy()}),
+        **(
+            {} if day is None else {"day_x": day.x, "day_y": day.y, "day_frames": day.source_frames}
+        ),
+        **({} if day is None else {"day_fitted": day.fitted, "day_note": day.source_note}),
+        **learner.quarantine.to_dict(),
+        "rng": learner.rng.bit_generator.state,
+        "model": snapshot_to_bytes(learner.model),
+        "trained": snapshot_to_bytes(learner.trained),
+    }
+
+
+def restore_learner(learner, state: dict) -> None:
+    """Put ``learner`` back where :func:`learner_state` found it (its models replaced by the
+    stored ones); an incomplete state or one of other features raises :class:`SnapshotError`."""
+    try:
+        model = snapshot_from_bytes(state["model"])
+        # States written before the average existed trained the model they published.
+        trained = snapshot_from_bytes(state.get("trained", state["model"]))
+        mem_x = np.asarray(state["memory_x"], dtype=float)
+        mem_y = np.asarray(state["memory_y"], dtype=float)
+        # States written before the calibration set existed restart with an empty one.
+        cal_x = np.asarray(state.get("holdout_x", mem_x[:0]), dtype=float)
+        cal_y = np.asarray(state.get("holdout_y", mem_y[:0]), dtype=float)
+        aci = np.asarray(state.get("aci_log_scale", np.zeros(6)), dtype=float)
+        n_seen, version = int(state["n_seen"]), int(state["version"])
+        rng_state = state["rng"]
+        quarantine, n_withheld = quarantine_from_dict(state), int(state.get("n_withheld", 0))
+        day_scale = state.get("day_scale")
+        day = None
+        if "day_x" in state:
+            frames, note = np.asarray(state["day_frames"], dtype=float), str(state["day_note"])
+            xy = np.asarray(state["day_x"], dtype=float), np.asarray(state["day_y"], dtype=float)
+            day = CarriedDay(frames, note, *xy, fitted=int(state["day_fitted"]))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise SnapshotError(f"continual state is incomplete: {exc}") from None
+    if model.feature_names != learner.model.feature_names:
+        raise SnapshotError(
+            f"continual state features {model.feature_names} differ from the learner's "
+            f"{learner.model.feature_names}"
+        )
+    learner.model, learner.trained = model, trained
+    learner._mem_x, learner._mem_y = mem_x, mem_y
+    learner._cal_x, learner._cal_y = cal_x, cal_y
+    learner.aci_log_scale = aci
+    learner.n_seen, learner.version = n_seen, version
+    learner.quarantine, learner.n_withheld = quarantine, n_withheld
+    learner.day_scale = None if day_scale is None else np.asarray(day_scale, dtype=float)
+    learner.day = day
+    learner.rng.bit_generator.state = rng_state

@@ -1,0 +1,135 @@
+"""A whole day streamed after the tracker moved: a model trained on one day goes on, as
+``robocal continual --from`` and the daemon's ``start_from`` do, through all of the next day's
+training points in recorded order, its frames fitted again as the day's points double
+(``ContinualConfig.day_frame_points``, default) or left as the first 50 points fitted them
+(``day_frame_points = 0``). Reported per case and setting: the day's prequential mean error
+(each batch scored before it is learned: what the line saw during the day) and the final
+model's mean, p95 and 90 % coverage on the day's held-out 10 %.
+
+Cases: random arms of ``sim_sources.unseen`` (``--arms``; 1,200 points, a hidden effect of 8
+noise floors by seed, geometric error of 20; day 1 the poses with q1 below its median, day 2
+the rest with the tracker moved by 2 mm / 2 mrad and the tool by 1 mm / 1 mrad) and, with
+``--a`` / ``--b``, the real UR10 from Series A to Series B (nothing moved; the importer's
+registration differs per series). Source models: 300 epochs, geometric base, seed 0, cached
+in ``--cache``.
+
+    .venv/bin/python bench/learner_moved_day.py --a /tmp/a.parquet --b /tmp/b.parquet
+"""
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from kinematics.dataset import Dataset, read_dataset, write_dataset
+from kinematics.transforms import (
+    transform_from_xyz_quat,
+    transform_from_xyz_rpy,
+    xyz_quat_from_transform,
+)
+from learner.config import ContinualConfig, TrainConfig
+from learner.continual import load_learner
+from learner.workflow import continual_on_dataset, train_on_dataset
+from sim_sources.unseen import UnseenSpec, write_unseen
+from stream.reports.learner import write_trained
+
+EFFECTS = ("joint_compliance", "gear_periodic", "thermal_expansion", "joint_coupling")
+TRACKER_MOVE = transform_from_xyz_rpy([2e-3, -1e-3, 0.5e-3], [0.0, 1e-3, 2e-3])
+TOOL_MOVE = transform_from_xyz_rpy([0.0, 1e-3, 0.0], [1e-3, 0.0, 0.0])
+SETTINGS = {"fitted again": None, "first points": 0}  # None: ContinualConfig's default
+
+
+def moved_days(seed: int, folder: Path) -> tuple[Path, Path]:
+    """Arm ``seed``'s two days (written once into ``folder``): day 2 seen by a moved tracker."""
+    root = folder / f"arm{seed}"
+    day1, day2 = root / "day1.parquet", root / "day2.parquet"
+    if day2.is_file():
+        return day1, day2
+    spec = UnseenSpec(
+        seed=seed,
+        n_points=1200,
+        hidden=EFFECTS[seed % 4],
+        magnitude=8.0,
+        also=(("geometric", 20.0),),
+    )
+    ds = read_dataset(write_unseen(spec, root)[0])
+    t, cut = ds.table, ds.table.q1.median()
+    write_dataset(Dataset(t[t.q1 < cut].reset_index(drop=True), ds.meta), day1)
+    later = t[t.q1 >= cut].reset_index(drop=True)
+    T = transform_from_xyz_quat(
+        later[["x", "y", "z"]].to_numpy(), later[["qx", "qy", "qz", "qw"]].to_numpy()
+    )
+    xyz, quat = xyz_quat_from_transform(TRACKER_MOVE[None] @ T @ TOOL_MOVE[None])
+    later[["x", "y", "z"]], later[["qx", "qy", "qz", "qw"]] = xyz, quat
+    write_dataset(Dataset(later, ds.meta), day2)
+    return day1, day2
+
+
+def source_model(day: Path, folder: Path, epochs: int) -> Path:
+    """The model of ``day`` (geometric base + residual, seed 0), trained once into ``folder``."""
+    path = folder / f"{day.parent.name}_{day.stem}_e{epochs}.safetensors"
+    if not path.is_file():
+        result = train_on_dataset(
+            read_dataset(day), seed=0, train_cfg=TrainConfig(max_epochs=epochs)
+        )
+        write_trained(result, path)
+    return path
+
+
+def stream_day(model_path: Path, day: Path, day_frame_points: int | None) -> dict:
+    """All of ``day`` streamed from the model at ``model_path`` (its state: the memory)."""
+    cfg = ContinualConfig()
+    if day_frame_points is not None:
+        cfg = ContinualConfig(day_frame_points=day_frame_points)
+    start = time.perf_counter()
+    r = continual_on_dataset(read_dataset(day), cfg, start=load_learner(model_path, cfg))
+    n = np.array([m.n_new for m in r.updates if m.n_new])
+    batch = np.array([m.batch_mean_mm for m in r.updates if m.n_new])
+    return {
+        "prequential_mm": float(np.sum(n * batch) / np.sum(n)),
+        "mean_mm": r.test.mean_mm,
+        "p95_mm": r.test.p95_mm,
+        "coverage_90": r.test.coverage_90,
+        "frames_fitted_on": r.learner.day.fitted,
+        "updates": len(r.updates),
+        "time_s": time.perf_counter() - start,
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--arms", nargs="*", type=int, default=[401, 402, 403, 404, 405, 406])
+    ap.add_argument("--a", help="UR10 Series A (robocal import ipa): A -> B with --b")
+    ap.add_argument("--b")
+    ap.add_argument("--max-epochs", type=int, default=300)
+    ap.add_argument("--cache", help="folder keeping the days and source models between runs")
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(args.cache or tmp)
+        folder.mkdir(parents=True, exist_ok=True)
+        cases = {f"arm {s} ({EFFECTS[s % 4]})": moved_days(s, folder) for s in args.arms}
+        if args.a and args.b:
+            cases["UR10 A -> B"] = Path(args.a), Path(args.b)
+        out = {}
+        for name, (day1, day2) in cases.items():
+            model = source_model(day1, folder, args.max_epochs)
+            out[name] = {k: stream_day(model, day2, v) for k, v in SETTINGS.items()}
+            print(json.dumps({name: out[name]}), flush=True)
+    print("| case | frames | prequential mm | final mean mm | p95 | 90 % cov. | fitted on | s |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name, rows in out.items():
+        for setting, r in rows.items():
+            print(
+                f"| {name} | {setting} | {r['prequential_mm']:.4f} | {r['mean_mm']:.4f} | "
+                f"{r['p95_mm']:.3f} | {100 * r['coverage_90']:.1f} % | "
+                f"{r['frames_fitted_on']} | {r['time_s']:.0f} |"
+            )
+
+
+if __name__ == "__main__":
+    main()
