@@ -140,6 +140,13 @@ def test_a_carried_model_goes_on_and_a_foreign_one_is_refused(batches, tmp_path)
     assert day2.learner.day_scale is not None  # carried: the network weighed on this batch
     assert 0.0 <= day2.learner.model.residual_gain <= 1.0
     assert len(day2.learner.memory) == len(day1.learner.memory) == 40
+    assert day2.learner.day.fitted == 20  # the carry's batch
+    for seq, b in enumerate(bs[:3], start=4):  # more of the day: its frames fitted again
+        day2.add_batch(Batch(seq=seq, points=b.points))
+    assert 40 < day2.learner.day.fitted <= len(day2.learner.day.x)
+    again = core(ds)
+    again.restore(day2.checkpoint())
+    np.testing.assert_array_equal(again.learner.day.x, day2.learner.day.x)
     with pytest.raises(ConfigError, match="is for robot 'fanuc_m900ib700'"):
         LearnerCore(load_description("ur10"), replace(CFG, start_from=str(path)))
 
