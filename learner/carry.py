@@ -169,14 +169,13 @@ def held_out_labels(
 
 @dataclass(frozen=True)
 class CarriedDay:
-    """A carried day's trained points so far (up to a limit, ``ContinualConfig.day_frame_points``)
-    and the frames
-    ``(T_0_B, tool)`` and note of the base it was carried from, the centre of its frames' prior.
-    Frames from the day's first points fold their local error in (the first points of a day
-    share its start temperature and one region); fitted again on all its points each time
-    they double, the error spreads out: arm 406 of ``sim_sources.unseen``, tracker moved by
-    2 mm, ended its day at 0.110 mm with the first points' frames, 0.067 mm re-fitted
-    (BENCHMARKS.md)."""
+    """A carried day's trained points so far (up to ``ContinualConfig.day_frame_points``) and
+    the frames ``(T_0_B, tool)`` and note of the base it was carried from, the centre of its
+    frames' prior. Frames from the day's first points fold their local error in (they share
+    the day's start temperature and one region); fitted again on all its points each time
+    they double, that error spreads out: arm 406 of ``sim_sources.unseen``, tracker moved by
+    2 mm, ended its day at 0.110 mm on the first points' frames, at 0.061 mm fitted again
+    (``bench/learner_moved_day.py``)."""
 
     source_frames: np.ndarray
     source_note: str

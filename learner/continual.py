@@ -260,13 +260,18 @@ class ContinualLearner:
 
     def rebase(self, base: PhysicsBase, keep: np.ndarray | None = None) -> None:
         """Put both models on a new physics base (e.g. frames re-identified on a new day); the
-        memory's labels move with it so that each point keeps its residual, but for the memory
-        points ``keep`` marks (measured in the new frames already) and the held-out set then."""
+        memory's labels move with it so that each point keeps its residual. With ``keep`` (a
+        carried day's frames fitted again) the memory points it marks and the held-out set,
+        all measured in the day's frames, keep their labels."""
         nominal = RobotModel(self.model.spec.description)
-        moves = [(self._mem_x, self._mem_y, keep), (self._cal_x, self._cal_y, None)]
-        for x, y, kept in moves[: 1 if keep is not None else 2]:
-            shift = base.error(self.model.spec, x, nominal) - self.trained.base_error(x)
-            y += shift if kept is None else np.where(kept[:, None], 0.0, shift)
+
+        def shift(x: np.ndarray) -> np.ndarray:
+            return base.error(self.model.spec, x, nominal) - self.trained.base_error(x)
+
+        if keep is None:
+            self._cal_y += shift(self._cal_x)
+            keep = np.zeros(len(self._mem_x), dtype=bool)
+        self._mem_y += np.where(keep[:, None], 0.0, shift(self._mem_x))
         for model in (self.model, self.trained):
             model.base = base
 

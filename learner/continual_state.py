@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from safetensors import SafetensorError
@@ -18,6 +19,9 @@ from kinematics.errors import SnapshotError
 from learner.carry import CarriedDay
 from learner.quarantine import state_from_dict as quarantine_from_dict
 from learner.snapshot import read_metadata, snapshot_from_bytes, snapshot_to_bytes
+
+if TYPE_CHECKING:
+    from learner.continual import ContinualLearner
 
 
 def state_path(model_path: str | Path) -> Path:
@@ -78,7 +82,7 @@ def state_from_bytes(data: bytes) -> dict:
         raise SnapshotError(f"continual state unreadable: {exc}") from None
 
 
-def learner_state(learner) -> dict:
+def learner_state(learner: ContinualLearner) -> dict:
     """Everything a restart of ``learner`` needs: memory, held-out set, a carried day's points,
     counters, rng state, the published and the trained model's snapshots."""
     day = learner.day
@@ -103,7 +107,7 @@ def learner_state(learner) -> dict:
     }
 
 
-def restore_learner(learner, state: dict) -> None:
+def restore_learner(learner: ContinualLearner, state: dict) -> None:
     """Put ``learner`` back where :func:`learner_state` found it (its models replaced by the
     stored ones); an incomplete state or one of other features raises :class:`SnapshotError`."""
     try:
