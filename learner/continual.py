@@ -37,7 +37,7 @@ from learner.base import PhysicsBase, identify_base, nominal_base
 from learner.carry import CarriedDay, carried_frames, held_out_labels
 from learner.config import ContinualConfig
 from learner.conformal import adapt_log_scale
-from learner.continual_base import due, memory_base
+from learner.continual_base import doubled, due, memory_base, refined_base, status
 from learner.continual_records import Memory, UpdateMetrics
 from learner.continual_state import (  # noqa: F401
     STATE_SCHEMA,
@@ -166,6 +166,7 @@ class ContinualLearner:
             errors, self.cfg.memory, self.rng, n_new=len(X_new), n_seen=self.n_seen
         )
         keep = np.sort(keep)
+        self._refine_base(len(self._mem_x), pool_x, pool_y, len(keep) == len(pool_x))
         self._mem_x, self._mem_y = pool_x[keep], pool_y[keep]
         self.n_seen = seen
         # The held-out set also picks the best epoch (and fit calibrates on it).
@@ -187,6 +188,16 @@ class ContinualLearner:
         dt = time.perf_counter() - start
         m = self._metrics(len(X_new), new_kept, report, dt, batch_err)
         return replace(m, withheld=withheld, holdout_mm=holdout_mm, **out)
+
+    def _refine_base(self, before: int, X: np.ndarray, Y: np.ndarray, all_kept: bool) -> None:
+        """Identify the base again from every trained point ``X, Y`` each time they double, while
+        the memory still holds them all (not on a carried day: its frames follow the day)."""
+        if not all_kept or self.day is not None or status(self.base) != "identified":
+            return
+        if doubled(before, len(X), self.cfg.init):
+            base = refined_base(self.base, self.model.spec, X, Y)
+            for model in (self.model, self.trained) if base is not None else ():
+                model.base = base
 
     def _reidentify(self) -> None:
         """Retrain on the base the memory identifies when due (:mod:`learner.continual_base`);

@@ -1,21 +1,18 @@
 """When and from which points a continual learner identifies its physics base again.
 
 A learner identifies its base (``auto`` or ``geometric``, :mod:`learner.base`) from its first
-``init`` points; batch training identifies it from every training point. An ``auto`` base the
-first points left on the nominal is identified from points spread over the replay memory every
-:data:`LATE_BASE_EVERY` versions until it is. A base the first points identified only weakly
-(condition number above :data:`REIDENTIFY_CONDITION`) is identified again once, at version
-:data:`FIRST_REIDENTIFY`: UR10 Series B's first 50 points (condition 54.6, 0.761 mm off alone
-against 0.416 mm from all points) ended ``robocal continual`` at 0.543 mm, identified again at
-0.398 mm. Well-conditioned ones are kept: on the simulated paper campaign (condition 10.7)
-identifying again at versions 8 and 16 ended 2.5 % worse (three seeds) and made ``make demo``
-34 s slower (BENCHMARKS.md). The caller retrains on the new base and keeps it only where the
-held-out error falls.
+``init`` points; batch training identifies it from every training point. An identified base is
+identified again from every trained point each time they double (:func:`doubled`,
+:func:`refined_base`), while the replay memory still holds them all, and the network goes on
+learning on it: the paper campaign's continual model at N_m 2,000 came from 0.0274 mm (base of
+the first 50 points) to 0.0253 mm, its batch model's error, and UR10 Series B's (first 50
+points: condition 54.6) from 0.386 to 0.361 mm (BENCHMARKS.md). An ``auto`` base the first
+points left on the nominal is identified from points spread over the replay memory every
+:data:`LATE_BASE_EVERY` versions until it is; the caller retrains on it and keeps it only
+where the held-out error falls.
 
->>> scheduled(8, "identified", 54.6), scheduled(8, "identified", 10.7)
-(True, False)
->>> scheduled(16, "identified", 54.6), scheduled(20, "nominal", 0.0), scheduled(21, "nominal", 0.0)
-(False, True, False)
+>>> scheduled(20, "nominal"), scheduled(21, "nominal"), scheduled(20, "identified")
+(True, False, False)
 """
 
 from __future__ import annotations
@@ -24,16 +21,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from learner.base import IDENTIFY_POINTS, PhysicsBase, identify_base
+from kinematics.errors import IdentifiabilityError
+from learner.base import AUTO_MAX_CONDITION, IDENTIFY_POINTS, PhysicsBase, identify_base
 from learner.features import FeatureSpec
 
 #: Versions between tries to identify an ``auto`` base the first points left on the nominal.
 LATE_BASE_EVERY = 10
-#: The version at which a weakly identified base is identified again.
-FIRST_REIDENTIFY = 8
-#: Condition numbers above which the first points' identification counts as weak (between the
-#: paper campaign's 10.7, where identifying again did not help, and UR10 B's 54.6, where it did).
-REIDENTIFY_CONDITION = 30.0
 
 
 def status(base: PhysicsBase) -> str:
@@ -45,17 +38,13 @@ def status(base: PhysicsBase) -> str:
 
 
 def due(version: int, base: PhysicsBase) -> bool:
-    """Whether ``base`` is identified again at ``version`` (:func:`scheduled`)."""
-    return scheduled(version, status(base), base.condition)
+    """Whether an ``auto`` base left on the nominal is identified again at ``version``."""
+    return scheduled(version, status(base))
 
 
-def scheduled(version: int, state: str, cond: float) -> bool:
-    """Whether a base in ``state`` (:func:`status`), identified with condition number ``cond``,
-    is identified again at ``version``."""
-    if state == "nominal":
-        return version > 0 and version % LATE_BASE_EVERY == 0
-    weak = cond > REIDENTIFY_CONDITION
-    return state == "identified" and version == FIRST_REIDENTIFY and weak
+def scheduled(version: int, state: str) -> bool:
+    """Whether a base in ``state`` (:func:`status`) is identified again at ``version``."""
+    return state == "nominal" and version > 0 and version % LATE_BASE_EVERY == 0
 
 
 def memory_base(
@@ -69,3 +58,25 @@ def memory_base(
     spread = np.linspace(0, len(X) - 1, IDENTIFY_POINTS).astype(int)
     new = identify_base("auto", spec, X[spread], Y[spread])
     return None if new.on_nominal else replace(new, kind=base.kind)
+
+
+def doubled(before: int, after: int, init: int) -> bool:
+    """Whether the trained points grew past ``init`` times a power of two (``before`` ->
+    ``after`` points): when an identified base is refined (:func:`refined_base`).
+
+    >>> [n for n in range(50, 500, 90) if doubled(n, n + 90, 50)]
+    [50, 140, 320]
+    """
+    return (after // init).bit_length() > (max(before, 0) // init).bit_length()
+
+
+def refined_base(
+    base: PhysicsBase, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray
+) -> PhysicsBase | None:
+    """``base`` (an identified one) identified again from every trained point ``X, Y`` so far;
+    None when they identify it only ill-conditioned. The network goes on learning on it."""
+    try:
+        new = identify_base("geometric", spec, X, Y)
+    except IdentifiabilityError:
+        return None
+    return None if new.condition > AUTO_MAX_CONDITION else replace(new, kind=base.kind)
