@@ -5,8 +5,9 @@ A learner identifies its base (``auto`` or ``geometric``, :mod:`learner.base`) f
 identified again from every trained point each time they double (:func:`doubled`,
 :func:`refined_base`), while the replay memory still holds them all, and the network goes on
 learning on it: the paper campaign's continual model at N_m 2,000 came from 0.0274 mm (base of
-the first 50 points) to 0.0253 mm, its batch model's error, and UR10 Series B's (first 50
-points: condition 54.6) from 0.386 to 0.361 mm (BENCHMARKS.md). An ``auto`` base the first
+the first 50 points) to 0.0253 mm, its batch model's 0.0255 mm (three seeds), UR10 Series A's
+from 0.237 to 0.213 mm and B's (first 50 points: condition 54.6) from 0.386 to 0.368 mm
+(BENCHMARKS.md). An ``auto`` base the first
 points left on the nominal is identified from points spread over the replay memory every
 :data:`LATE_BASE_EVERY` versions until it is; the caller retrains on it and keeps it only
 where the held-out error falls.
