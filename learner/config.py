@@ -207,10 +207,12 @@ class ContinualConfig:
     ``average`` is the latest update's share (1 publishes the trained weights as they are).
     ``memory`` 2,000, measured on real and simulated streams at about twice the update time
     of 500 (the reference experiment's setting): UR10 A 0.237 mm against 0.398 mm, UR10 B
-    0.386 against 0.398 mm, the paper campaign 0.027 against 0.040 mm (BENCHMARKS.md).
+    0.386 against 0.398 mm, the paper campaign 0.027 against 0.040 mm (BENCHMARKS.md; at 2,000
+    since the base is identified again as the points double: 0.213, 0.368 and 0.025 mm).
     ``base`` is the physics base the first model is identified on from the ``init`` points
-    (:mod:`learner.base`; a model that has one keeps it); ``auto`` takes the nominal when they
-    are too few to identify it.
+    (:mod:`learner.base`; a model that has one keeps it; :mod:`learner.continual_base` says
+    when it is identified again); ``auto`` takes the nominal when they are too few to identify
+    it.
     ``frame_prior_mm`` is how far a carried base's frames may move on a new day's first
     points, ``moved_frame_prior_mm`` how far when those points show that the tracker or tool
     moved (:meth:`ContinualLearner.carry`, :func:`learner.carry.carried_frames`); the day's
