@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 from safetensors import SafetensorError
@@ -19,9 +19,6 @@ from kinematics.errors import SnapshotError
 from learner.carry import CarriedDay
 from learner.quarantine import state_from_dict as quarantine_from_dict
 from learner.snapshot import read_metadata, snapshot_from_bytes, snapshot_to_bytes
-
-if TYPE_CHECKING:
-    from learner.continual import ContinualLearner
 
 
 def state_path(model_path: str | Path) -> Path:
@@ -82,8 +79,9 @@ def state_from_bytes(data: bytes) -> dict:
         raise SnapshotError(f"continual state unreadable: {exc}") from None
 
 
-def learner_state(learner: ContinualLearner) -> dict:
-    """Everything a restart of ``learner`` needs: memory, held-out set, a carried day's points,
+def learner_state(learner: Any) -> dict:
+    """Everything a restart of ``learner`` (a :class:`~learner.continual.ContinualLearner`; not
+    imported here, which would be a cycle) needs: memory, held-out set, a carried day's points,
     counters, rng state, the published and the trained model's snapshots."""
     day = learner.day
     return {
@@ -107,7 +105,7 @@ def learner_state(learner: ContinualLearner) -> dict:
     }
 
 
-def restore_learner(learner: ContinualLearner, state: dict) -> None:
+def restore_learner(learner: Any, state: dict) -> None:
     """Put ``learner`` back where :func:`learner_state` found it (its models replaced by the
     stored ones); an incomplete state or one of other features raises :class:`SnapshotError`."""
     try:
