@@ -192,12 +192,10 @@ class ContinualLearner:
     def _refine_base(self, before: int, X: np.ndarray, Y: np.ndarray, all_kept: bool) -> None:
         """Identify the base again from every trained point ``X, Y`` each time they double, while
         the memory still holds them all (not on a carried day: its frames follow the day)."""
-        if not all_kept or self.day is not None or status(self.base) != "identified":
-            return
-        if doubled(before, len(X), self.cfg.init):
+        grown = doubled(before, len(X), self.cfg.init)
+        if all_kept and grown and self.day is None and status(self.base) == "identified":
             base = refined_base(self.base, self.model.spec, X, Y)
-            for model in (self.model, self.trained) if base is not None else ():
-                model.base = base
+            self.model.base = self.trained.base = base or self.base  # None: ill-conditioned
 
     def _reidentify(self) -> None:
         """Retrain on the base the memory identifies when due (:mod:`learner.continual_base`);
