@@ -1,7 +1,7 @@
 """Learner stage update time per batch (features + labels + ContinualLearner.update + metrics
 + snapshot), for the paper's reference setting (N_m=500, n_B=100) and the demo's learner, which
-is the production example's (deploy/robocal.example.toml, N_m=2000; the memory fills from 2,000
-points on).
+is the production example's (deploy/robocal.example.toml, N_m=4000; an update over more than
+2,000 memory points trains proportionally fewer epochs).
 
     .venv/bin/python bench/stream_learner.py [--n 900]
 """
@@ -38,7 +38,7 @@ def main() -> None:
     reference = replace(DEMO_LEARNER, continual=ContinualConfig(memory=500))
     for label, cfg in (
         ("paper (N_m=500)", reference),
-        ("demo = production (N_m=2000)", DEMO_LEARNER),
+        ("demo = production (N_m=4000)", DEMO_LEARNER),
     ):
         core = LearnerCore(load_description(ds.meta.robot), cfg, np.asarray(ds.meta.T_W_0))
         times, last = [], None

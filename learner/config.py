@@ -205,10 +205,14 @@ class ContinualConfig:
     that picks the epoch each update keeps and on which the intervals are calibrated. The
     published model is an exponential moving average of the trained weights over updates;
     ``average`` is the latest update's share (1 publishes the trained weights as they are).
-    ``memory`` 2,000, measured on real and simulated streams at about twice the update time
-    of 500 (the reference experiment's setting): UR10 A 0.237 mm against 0.398 mm, UR10 B
-    0.386 against 0.398 mm, the paper campaign 0.027 against 0.040 mm (BENCHMARKS.md; at 2,000
-    since the base is identified again as the points double: 0.213, 0.368 and 0.025 mm).
+    An update trains ``epochs_per_update`` epochs over up to ``update_points`` memory points
+    and proportionally fewer over more (:meth:`update_epochs`), so a larger memory costs
+    little update time. ``memory`` 4,000: a real line streams its program in order, sweeping
+    the workspace, and UR10 Series A (10,720 points) streamed so ends at 0.150 mm against
+    0.213 mm at 2,000 (its batch model 0.081 mm); the paper campaign and random arms are the
+    same at either (BENCHMARKS.md). ``calibration_size`` 1,000: a FIFO of 200 held only the
+    front of a long stream, and its intervals covered 82-89 % of random arms' 6,000-point
+    series (now 90-91 %).
     ``base`` is the physics base the first model is identified on from the ``init`` points
     (:mod:`learner.base`; a model that has one keeps it; :mod:`learner.continual_base` says
     when it is identified again); ``auto`` takes the nominal when they are too few to identify
@@ -224,15 +228,16 @@ class ContinualConfig:
     keeps poisoned points out and withholds updates that worsen the held-out error (a table
     ``[learner.continual.quarantine]`` in TOML)."""
 
-    memory: int = 2000
+    memory: int = 4000
     batch: int = 100
     init: int = 50
     strategy: str = "max_error"
     epochs_per_update: int = 60
+    update_points: int = 2000
     init_epochs: int = 300
     update_lr: float = 1e-3
     holdout: float = 0.1
-    calibration_size: int = 200
+    calibration_size: int = 1000
     average: float = 0.3
     base: str = "auto"
     aci_rate: float = 0.05
@@ -253,7 +258,15 @@ class ContinualConfig:
             isinstance(self.quarantine, QuarantineConfig),
             f"continual.quarantine must be a table, got {type(self.quarantine).__name__}",
         )
-        counts = ("memory", "batch", "init", "epochs_per_update", "init_epochs", "calibration_size")
+        counts = (
+            "memory",
+            "batch",
+            "init",
+            "epochs_per_update",
+            "update_points",
+            "init_epochs",
+            "calibration_size",
+        )
         _check_counts(self, "continual", counts)
         _check_choice("continual", "strategy", self.strategy, STRATEGIES)
         _check(
@@ -289,3 +302,13 @@ class ContinualConfig:
             f"continual.day_frame_points must be an int >= 0, got {self.day_frame_points!r}",
         )
         _check(isinstance(self.seed, int), f"continual.seed must be an int, got {self.seed!r}")
+
+    def update_epochs(self, n_memory: int) -> int:
+        """The epochs of an update over ``n_memory`` points: ``epochs_per_update``, fewer over a
+        memory above ``update_points`` so that an update trains about as long whatever the memory.
+
+        >>> ContinualConfig().update_epochs(1500), ContinualConfig().update_epochs(4000)
+        (60, 30)
+        """
+        share = min(1.0, self.update_points / max(n_memory, 1))
+        return max(1, round(self.epochs_per_update * share))

@@ -176,7 +176,7 @@ class ContinualLearner:
             self._mem_x,
             self._mem_y,
             *val,
-            max_epochs=self.cfg.epochs_per_update,
+            max_epochs=self.cfg.update_epochs(len(self._mem_x)),
             val_fraction=0.0,
             lr=self.cfg.update_lr,
             trainer=self.trainer,

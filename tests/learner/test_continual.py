@@ -3,7 +3,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from kinematics.errors import DatasetError, SnapshotError
+from kinematics.errors import ConfigError, DatasetError, SnapshotError
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from learner.continual import ContinualLearner, state_from_bytes, state_to_bytes
 from learner.features import FeatureSpec
@@ -227,3 +227,20 @@ def test_an_update_keeps_the_weights_best_on_the_held_out_set(two_regions):
         learner.update(X[75:100], Y[75:100])
         scores.append(_holdout_mse(learner))
     assert scores[1] <= scores[0] + 1e-9
+
+
+def test_a_memory_above_update_points_trains_fewer_epochs(two_regions):
+    # An update costs about the same whatever the memory: 20 epochs over up to 40 points.
+    X, Y, _, _ = two_regions
+    learner = _learner("max_error", memory=100, epochs=20)
+    learner.cfg = replace(learner.cfg, update_points=40)
+    steps = _stream(learner, X[:100], Y[:100])[1:]
+    assert [m.memory_size for m in steps] == [50, 75, 100]
+    assert [m.epochs for m in steps] == [16, 11, 8]
+    learner = _learner("max_error", memory=100, epochs=20)
+    assert [m.epochs for m in _stream(learner, X[:100], Y[:100])[1:]] == [20, 20, 20]
+
+
+def test_update_points_must_be_a_positive_count():
+    with pytest.raises(ConfigError, match="update_points"):
+        ContinualConfig(update_points=0)
