@@ -209,10 +209,10 @@ class ContinualConfig:
     and proportionally fewer over more (:meth:`update_epochs`), so a larger memory costs
     little update time. ``memory`` 4,000: a real line streams its program in order, sweeping
     the workspace, and UR10 Series A (10,720 points) streamed so ends at 0.150 mm against
-    0.213 mm at 2,000 (its batch model 0.081 mm); the paper campaign and random arms are the
-    same at either (BENCHMARKS.md). ``calibration_size`` 1,000: a FIFO of 200 held only the
-    front of a long stream, and its intervals covered 82-89 % of random arms' 6,000-point
-    series (now 90-91 %).
+    0.213 mm at 2,000 (its batch model 0.081 mm); the paper campaign is the same at either
+    (0.0253 mm), random arms' 6,000-point streams 0.093 against 0.095 mm (BENCHMARKS.md).
+    ``calibration_size`` 1,000: a FIFO of 200 held only the front of a long stream, and its
+    intervals covered 82-89 % of those arms' test points (now 90-91 %).
     ``base`` is the physics base the first model is identified on from the ``init`` points
     (:mod:`learner.base`; a model that has one keeps it; :mod:`learner.continual_base` says
     when it is identified again); ``auto`` takes the nominal when they are too few to identify

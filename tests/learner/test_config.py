@@ -29,5 +29,5 @@ def test_defaults_follow_the_method():
     t = TrainConfig()
     assert t.patience_lr == 30
     c = ContinualConfig()
-    # DESIGN's reference experiment streams N_m 500; the default memory is the measured 2,000
-    assert (c.memory, c.batch, c.init, c.strategy) == (2000, 100, 50, "max_error")
+    # DESIGN's reference experiment streams N_m 500; the default memory is the measured 4,000
+    assert (c.memory, c.batch, c.init, c.strategy) == (4000, 100, 50, "max_error")
