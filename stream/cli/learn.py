@@ -88,6 +88,7 @@ _CONTINUAL_OPTIONS = {
     "init": "points of model 0",
     "strategy": None,
     "epochs_per_update": None,
+    "update_points": "memory points over which an update trains every epoch (fewer above)",
     "frame_prior_mm": "with --from: how far the base's frames may move on the first points (mm)",
     "moved_frame_prior_mm": "with --from: the same once those points show a moved tracker/tool",
     "day_frame_points": "with --from: fit the frames again on up to this many of the day's points",

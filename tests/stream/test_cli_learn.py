@@ -1,3 +1,4 @@
+import csv
 import json
 from pathlib import Path
 
@@ -112,6 +113,14 @@ def test_continual_writes_model_and_curve(data_file, tmp_path, capsys):
     assert len(csv) == 5 and "mean_mm" in csv[0]
     assert (tmp_path / "c.curve.png").stat().st_size > 1000
     assert model.exists()
+
+
+def test_continual_update_points_bound_the_epochs(data_file, tmp_path, capsys):
+    # 2 epochs over up to 20 memory points: 1 epoch once the 40-point memory is full
+    model = tmp_path / "c.safetensors"
+    _continual(capsys, data_file, model, "--memory", "40", "--init", "30", "--update-points", "20")
+    rows = list(csv.DictReader((tmp_path / "c.curve.csv").open()))
+    assert [(r["memory_size"], r["epochs"]) for r in rows[-2:]] == [("40", "1"), ("40", "1")]
 
 
 def test_experiment_quick(data_file, tmp_path, capsys, monkeypatch):
