@@ -25,6 +25,7 @@ import torch
 
 from kinematics.model import RobotModel
 from kinematics.transforms import pose_error
+from learner.config import DEFAULT_BASE
 from learner.snapshot import load_snapshot, save_snapshot
 from learner.workflow import train_on_dataset
 from sim_sources.cell import SimulatedCell, simulate
@@ -71,7 +72,9 @@ def main() -> None:
     else:
         t0 = time.perf_counter()
         train = np.setdiff1d(np.arange(N), held)
-        model = train_on_dataset(ds.subset(train), test_fraction=0.0, seed=SEED).model
+        model = train_on_dataset(
+            ds.subset(train), test_fraction=0.0, seed=SEED, base=DEFAULT_BASE
+        ).model
         print(f"trained on {len(train)} points in {time.perf_counter() - t0:.0f} s", flush=True)
         if args.save:
             save_snapshot(model, args.save)

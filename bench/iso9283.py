@@ -27,6 +27,7 @@ import torch
 from kinematics.dataset import Dataset
 from kinematics.model import RobotModel
 from kinematics.transforms import xyz_quat_from_transform
+from learner.config import DEFAULT_BASE
 from learner.snapshot import load_snapshot, save_snapshot
 from learner.workflow import train_on_dataset
 from sim_sources.cell import SimulatedCell, simulate
@@ -83,7 +84,7 @@ def main() -> None:
     else:
         t0 = time.perf_counter()
         train = simulate(get_scenario("paper"), 3004, 1)
-        result = train_on_dataset(train, test_fraction=0.1, seed=0)
+        result = train_on_dataset(train, test_fraction=0.1, seed=0, base=DEFAULT_BASE)
         model = result.model
         print(
             f"trained on paper seed 1 ({result.n_train} points) in "

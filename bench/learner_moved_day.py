@@ -31,7 +31,7 @@ from kinematics.transforms import (
     transform_from_xyz_rpy,
     xyz_quat_from_transform,
 )
-from learner.config import ContinualConfig, TrainConfig
+from learner.config import DEFAULT_BASE, ContinualConfig, TrainConfig
 from learner.continual import load_learner
 from learner.workflow import continual_on_dataset, train_on_dataset
 from sim_sources.unseen import UnseenSpec, write_unseen
@@ -74,7 +74,7 @@ def source_model(day: Path, folder: Path, epochs: int) -> Path:
     path = folder / f"{day.parent.name}_{day.stem}_e{epochs}.safetensors"
     if not path.is_file():
         result = train_on_dataset(
-            read_dataset(day), seed=0, train_cfg=TrainConfig(max_epochs=epochs)
+            read_dataset(day), seed=0, train_cfg=TrainConfig(max_epochs=epochs), base=DEFAULT_BASE
         )
         write_trained(result, path)
     return path

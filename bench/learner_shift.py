@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from kinematics.dataset import read_dataset
-from learner.config import ContinualConfig, ModelConfig, TrainConfig
+from learner.config import DEFAULT_BASE, ContinualConfig, ModelConfig, TrainConfig
 from learner.continual import ContinualLearner, load_learner
 from learner.model import ErrorModel
 from learner.workflow import prepare, train_on_dataset
@@ -55,7 +55,9 @@ def paper(path: str, rate: float) -> dict:
 def ur10(a: str, b: str, rate: float, folder: Path) -> dict:
     model_path = folder / "a.safetensors"
     if not model_path.exists():
-        result = train_on_dataset(read_dataset(a), train_cfg=TrainConfig(max_epochs=300))
+        result = train_on_dataset(
+            read_dataset(a), train_cfg=TrainConfig(max_epochs=300), base=DEFAULT_BASE
+        )
         write_trained(result, model_path)
     learner = load_learner(model_path, ContinualConfig(aci_rate=rate))
     p = prepare(read_dataset(b), test_fraction=0.0, spec=learner.model.spec)

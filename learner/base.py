@@ -15,9 +15,11 @@ the model still predicts DESIGN.md's label, the pose error against the nominal. 
   above :data:`AUTO_MAX_CONDITION`: poses from one region; the snapshot says why);
 - a path: a calibrated model file (``robocal calibrate --out``) or ``robocal gap``'s model file.
 
-On real UR10 series the geometric base with a residual network is the most accurate of these
-(BENCHMARKS.md, "Real UR10": ``gap`` is better on Series B, worse on A), so it is the default;
-on random arms whose effects the gap workflow names, ``gap`` reaches the noise floor.
+On real UR10 series the geometric base with a residual network is the most accurate single
+kind (BENCHMARKS.md, "Real UR10": ``gap`` is better on Series B, worse on A); on random arms
+whose effects the gap workflow names, ``gap`` reaches the noise floor. So ``robocal train``
+trains on both and keeps the better on validation points (``best``,
+:func:`learner.workflow.train_on_dataset`).
 
 >>> from kinematics.description import load_description
 >>> from learner.features import feature_spec

@@ -26,8 +26,13 @@ BASE_KINDS = ("nominal", "geometric", "auto", "gap")
 #: The kinds a stream identifies from its first points; a gap model needs every training point
 #: at once (from UR10 Series B's first 50 it was 1.97 mm off): pass ``robocal gap``'s file.
 STREAM_BASE_KINDS = ("nominal", "geometric", "auto")
-#: The base that measured best on real data (BENCHMARKS.md, "Real UR10").
+#: The one base that measured best on real data (BENCHMARKS.md, "Real UR10"): ``robocal hpo``'s
+#: default and the benches' base.
 DEFAULT_BASE = "geometric"
+#: ``robocal train``'s default: the residual trained on the ``geometric`` and on the ``gap``
+#: base, the one with the lower validation error kept (:func:`learner.workflow.train_on_dataset`);
+#: on the real UR10 neither base wins both series, on random arms ``gap`` wins by 1.4-2.4 x.
+SELECTED_BASE = "best"
 #: Prior of a re-identified frame parameter (:func:`learner.carry.reidentify_frames`): a
 #: Gaussian whose std moves the tool pose by this much (mm, RMS over the new points; rotations
 #: on a 1 m lever), weighed against what a free fit of the frames leaves (``s_p``), so the

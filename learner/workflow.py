@@ -19,13 +19,17 @@ from kinematics.errors import ConfigError, DatasetError
 from kinematics.identity import check_match, description_for
 from kinematics.model import RobotModel
 from learner.base import (
-    DEFAULT_BASE,
     PhysicsBase,
     check_same_robot,
     data_frame,
     make_base,
 )
-from learner.config import ContinualConfig, ModelConfig, TrainConfig
+from learner.config import (
+    SELECTED_BASE,
+    ContinualConfig,
+    ModelConfig,
+    TrainConfig,
+)
 from learner.continual import ContinualLearner
 from learner.continual_records import UpdateMetrics
 from learner.features import FeatureSpec, dataset_feature_spec, dataset_features, dataset_labels
@@ -113,20 +117,66 @@ def train_on_dataset(
     model_cfg: ModelConfig | None = None,
     train_cfg: TrainConfig | None = None,
     on_epoch: Callable[[int, float], None] | None = None,
-    base: str = DEFAULT_BASE,
+    base: str = SELECTED_BASE,
 ) -> TrainResult:
     """Batch-train a model on ``base`` (identified on the training split) and report its test
-    accuracy; the result's learner remembers the worst-predicted training points."""
+    accuracy; the result's learner remembers the worst-predicted training points. ``best``
+    (:data:`SELECTED_BASE`) trains one on the geometric and one on the gap base and keeps the
+    one that predicts the validation points (those :meth:`ErrorModel.fit` held out) better."""
     p = prepare(ds, test_fraction=test_fraction, seed=seed)
     train = np.sort(p.train)
-    physics = make_base(base, p.spec, p.X[train], p.Y[train], data_frame(ds))
-    model = _new_model(p, model_cfg, train_cfg, seed, physics)
-    report = model.fit(p.X[p.train], p.Y[p.train], on_epoch=on_epoch)
+    kinds = _candidate_bases(base, p, train, data_frame(ds))
+    fits = []
+    for physics in kinds:
+        model = _new_model(p, model_cfg, train_cfg, seed, physics)
+        fits.append((model, model.fit(p.X[p.train], p.Y[p.train], on_epoch=on_epoch)))
+    model, report = best_on_validation(fits, p.X[p.train], p.Y[p.train])
     test = accuracy_report(model, p.X[p.test], p.Y[p.test]) if len(p.test) else None
     model.metrics = {} if test is None else test.to_dict()
     learner = ContinualLearner(model, ContinualConfig(seed=seed))
     learner.remember(p.X[train], p.Y[train])
     return TrainResult(model=model, report=report, test=test, n_train=len(p.train), learner=learner)
+
+
+def _candidate_bases(
+    base: str, p: Prepared, train: np.ndarray, frame: np.ndarray | None
+) -> list[PhysicsBase]:
+    """The bases to train on: ``base``'s, or for ``best`` the geometric and the gap base. The
+    gap base is left out, and the note says why, where it names nothing beyond the geometry
+    (the same base: not trained twice) or the data cannot form it (e.g. thermometers the
+    description's map names are missing)."""
+    X, Y = p.X[train], p.Y[train]
+    if base != SELECTED_BASE:
+        return [make_base(base, p.spec, X, Y, frame)]
+    geometric = make_base("geometric", p.spec, X, Y, frame)
+    try:
+        gap = make_base("gap", p.spec, X, Y, frame)
+    except DatasetError as exc:
+        return [replace(geometric, note=f"{geometric.note}; no gap base: {exc}")]
+    if not any(e.name != "geometric" for e in gap.effects):
+        return [replace(geometric, note=f"{geometric.note}; the gap model names no effect")]
+    return [geometric, gap]
+
+
+def best_on_validation(
+    fits: list[tuple[ErrorModel, TrainReport]], X: np.ndarray, Y: np.ndarray
+) -> tuple[ErrorModel, TrainReport]:
+    """Of models fitted on ``X, Y``, the one with the lowest mean position error on the points
+    its fit held out (the same for all: same seeds); its base note says what it beat."""
+    if len(fits) == 1:
+        return fits[0]
+    held = fits[0][0].validation_rows(len(X))
+    if not len(held):
+        raise DatasetError(
+            f"base {SELECTED_BASE!r} needs validation points (>= 10 training points)"
+        )
+    errors = [accuracy_report(m, X[held], Y[held]).mean_mm for m, _ in fits]
+    best = int(np.argmin(errors))
+    model = fits[best][0]
+    scores = ", ".join(f"{m.base.kind} {e:.4f} mm" for (m, _), e in zip(fits, errors, strict=True))
+    note = f"{model.base.note}; chosen on {len(held)} validation points ({scores})"
+    model.base = replace(model.base, note=note)
+    return fits[best]
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -1,6 +1,6 @@
 """CLI commands of the learner: ``train``, ``continual``, ``evaluate``, ``experiment paper``.
 
-robocal train --data paper.parquet --out model.safetensors --base geometric
+robocal train --data paper.parquet --out model.safetensors --base best
 robocal continual --data paper.parquet --memory 500 --batch 100 --out cont.safetensors
 robocal continual --from cont.safetensors --data day2.parquet --test-fraction 0 --out c2.safetensors
 robocal evaluate --model model.safetensors --data paper.parquet --json
@@ -14,7 +14,14 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from learner.config import STRATEGIES, STREAM_BASE_KINDS, ContinualConfig, TrainConfig
+from learner.config import (
+    BASE_KINDS,
+    SELECTED_BASE,
+    STRATEGIES,
+    STREAM_BASE_KINDS,
+    ContinualConfig,
+    TrainConfig,
+)
 from stream.cli._base import Command, add_base_argument, add_data_argument, add_json_flag, emit
 
 if TYPE_CHECKING:
@@ -45,7 +52,7 @@ class Train(Command):
         _add_split(parser)
         parser.add_argument("--out", required=True, help="model snapshot to write (.safetensors)")
         parser.add_argument("--max-epochs", type=int, default=TrainConfig().max_epochs)
-        add_base_argument(parser)
+        add_base_argument(parser, SELECTED_BASE, (*BASE_KINDS, SELECTED_BASE))
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
@@ -58,12 +65,19 @@ class Train(Command):
         ds = read_dataset(args.data)
         cfg = TrainConfig(seed=args.seed, max_epochs=args.max_epochs)
         with tqdm(total=cfg.max_epochs, desc="train", unit="epoch", file=sys.stderr) as bar:
+
+            def progress(epoch: int, val_mse: float) -> None:
+                if epoch < bar.n:  # the next base's fit (--base best)
+                    bar.reset()
+                bar.update()
+                bar.set_postfix(val_mse=f"{val_mse:.4g}")
+
             result = train_on_dataset(
                 ds,
                 test_fraction=args.test_fraction,
                 seed=args.seed,
                 train_cfg=cfg,
-                on_epoch=lambda e, v: (bar.update(), bar.set_postfix(val_mse=f"{v:.4g}")),
+                on_epoch=progress,
                 base=args.base,
             )
         write_trained(result, args.out)

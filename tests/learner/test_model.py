@@ -108,6 +108,20 @@ def test_calibration_lowers_held_out_nll(data):
     assert np.all(scale > 0) and np.all(after <= before + 1e-9)
 
 
+def test_validation_rows_are_the_ones_fit_held_out(data):
+    """What ``--base best`` compares models on: the points each fit held out, not trained on."""
+    spec, X, Y = data
+    m = _model(spec, max_epochs=3)
+    m.fit(X[:200], Y[:200])
+    held = m.validation_rows(200)
+    assert len(held) == 20 and len(set(held.tolist())) == 20
+    np.testing.assert_array_equal(held, _model(spec, max_epochs=3).validation_rows(200))
+    scale = m.interval_scale.copy()  # fit calibrated on its validation points
+    np.testing.assert_allclose(m.calibrate(X[:200][held], Y[:200][held]), scale)
+    assert not np.allclose(m.calibrate(X[:20], Y[:20]), scale)
+    assert len(m.validation_rows(9)) == 0
+
+
 def test_bad_shapes_raise(data):
     spec, X, Y = data
     m = _model(spec)

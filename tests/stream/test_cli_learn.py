@@ -105,6 +105,34 @@ def test_train_on_a_gap_base_in_one_step(data_file, tmp_path, capsys):
     assert "`robocal gap`'s model file" in capsys.readouterr().err.splitlines()[-1]
 
 
+def test_train_keeps_the_base_that_predicts_its_validation_points_better(
+    data_file, tmp_path, capsys
+):
+    """The default ``--base best``: on an arm whose compliance the gap model names, the gap
+    base; where the data cannot form a gap model, the geometric base, and the note says why."""
+    spec = UnseenSpec(seed=4, n_points=300, hidden="joint_compliance", also=(("geometric", 10),))
+    data, _, _ = write_unseen(spec, tmp_path / "arm")
+    argv = ["train", "--data", str(data), "--out", str(tmp_path / "b.safetensors")]
+    assert main([*argv, "--max-epochs", "3", "--json"]) == 0
+    out = _json(capsys)
+    note = out["base"]["note"]
+    assert out["base"]["kind"] == "gap" and "chosen on 27 validation points" in note
+    geometric, gap = (float(note.split(f"{k} ")[-1].split(" mm")[0]) for k in ("geometric", "gap"))
+    assert gap < geometric
+    assert load_snapshot(tmp_path / "b.safetensors").base.note == note
+    argv = ["train", "--data", str(data_file), "--out", str(tmp_path / "g.safetensors")]
+    assert main([*argv, "--max-epochs", "3", "--json"]) == 0
+    out = _json(capsys)
+    assert out["base"]["kind"] == "geometric" and "no gap base:" in out["base"]["note"]
+    # an arm with a geometric error alone: the gap model is the geometric base, trained once
+    spec = UnseenSpec(seed=5, n_points=300, also=(("geometric", 10),))
+    data, _, _ = write_unseen(spec, tmp_path / "geometric")
+    argv = ["train", "--data", str(data), "--out", str(tmp_path / "g.safetensors")]
+    assert main([*argv, "--max-epochs", "3", "--json"]) == 0
+    out = _json(capsys)
+    assert out["base"]["kind"] == "geometric" and "names no effect" in out["base"]["note"]
+
+
 def test_continual_writes_model_and_curve(data_file, tmp_path, capsys):
     model = tmp_path / "c.safetensors"
     out = _continual(capsys, data_file, model, "--memory", "40", "--init", "30")
