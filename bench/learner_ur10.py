@@ -146,6 +146,7 @@ def compare(ds: Dataset, seeds: list[int], epochs: int, mlp_inputs: str = "angle
     ]
     out["best_on_validation"] = _over_seeds([_model_stats(m, Xte, Yte) for m in chosen])
     out["best_on_validation"]["chosen"] = [m.base.kind for m in chosen]
+    out["best_on_validation"]["validation"] = [m.base.note.split("chosen on ")[-1] for m in chosen]
     cols = [i for i, n in enumerate(p.spec.names) if mlp_inputs == "all" or n.startswith("q")]
     mlp = []
     for seed in seeds:

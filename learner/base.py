@@ -18,8 +18,8 @@ the model still predicts DESIGN.md's label, the pose error against the nominal. 
 On real UR10 series the geometric base with a residual network is the most accurate single
 kind (BENCHMARKS.md, "Real UR10": ``gap`` is better on Series B, worse on A); on random arms
 whose effects the gap workflow names, ``gap`` reaches the noise floor. So ``robocal train``
-trains on both and keeps the better on validation points (``best``,
-:func:`learner.workflow.train_on_dataset`).
+trains on both and keeps ``gap`` only where it is clearly better on validation points
+(``best``, :func:`learner.workflow.best_on_validation`).
 
 >>> from kinematics.description import load_description
 >>> from learner.features import feature_spec

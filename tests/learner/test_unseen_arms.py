@@ -14,7 +14,7 @@ from learner.config import ModelConfig, TrainConfig
 from learner.metrics import accuracy_report
 from learner.model import ErrorModel
 from learner.snapshot import snapshot_from_bytes, snapshot_to_bytes
-from learner.workflow import prepare
+from learner.workflow import best_on_validation, prepare
 from sim_sources.unseen import UnseenSpec, unseen_campaign, write_unseen
 
 
@@ -79,3 +79,29 @@ def test_a_gap_base_takes_the_named_effect_and_its_snapshot_reproduces_it(tmp_pa
     back = snapshot_from_bytes(snapshot_to_bytes(model))
     assert back.base.kind == "gap" and back.base.note == base.note
     assert np.allclose(back.predict(p.X[te]).gamma, model.predict(p.X[te]).gamma, atol=1e-9)
+
+
+def test_best_keeps_a_gap_base_only_where_it_clearly_wins(tmp_path):
+    """``--base best``: the gap model + residual where it predicts the validation points far
+    better; the simpler base first in the list wins every tie and every small margin."""
+    spec = UnseenSpec(
+        seed=5, n_points=400, hidden="gear_periodic", magnitude=8.0, also=(("geometric", 20.0),)
+    )
+    path, _, _ = write_unseen(spec, tmp_path)
+    p = prepare(read_dataset(path), test_fraction=0.1, seed=0)
+    X, Y = p.X[p.train], p.Y[p.train]
+    fits = []
+    for kind in ("geometric", "gap"):
+        base = identify_base(kind, p.spec, p.X[np.sort(p.train)], p.Y[np.sort(p.train)])
+        model = ErrorModel.create(
+            p.spec, ModelConfig(), TrainConfig(max_epochs=20, seed=0), 0, p.robot, base
+        )
+        fits.append((model, model.fit(X, Y)))
+    geometric, gap = fits
+    assert best_on_validation([geometric, gap], X, Y)[0].base.kind == "gap"
+    note = gap[0].base.note
+    assert "chosen on 36 validation points (geometric " in note and note.endswith(" mm)")
+    assert best_on_validation([gap, geometric], X, Y)[0] is gap[0]  # geometric: far worse
+    same = snapshot_from_bytes(snapshot_to_bytes(geometric[0]))
+    same.base = replace(same.base, kind="gap")  # the same predictions under another name
+    assert best_on_validation([geometric, (same, geometric[1])], X, Y)[0] is geometric[0]
