@@ -27,8 +27,8 @@ from sim_sources.unseen import UnseenSpec, write_unseen
 #: The non-geometric effects the arms take in turn: the kinds real arms show after calibration,
 #: and one no model of the product names (the network's own job).
 EFFECTS = ("joint_compliance", "gear_periodic", "thermal_expansion", "joint_coupling")
-#: Columns of the table; the default, ``robocal train``'s ``--base best``, is the last: the
-#: better of the two residual models before it on their validation points.
+#: Columns of the table; the default, ``robocal train``'s ``--base best``, is the last: of the
+#: two residual models before it, the gap one where its validation error is clearly lower.
 MODELS = (
     "geometric_calibration",
     "gap_model",

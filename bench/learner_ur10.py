@@ -3,9 +3,10 @@ per series (seed 0), the error models on the same points: the learner alone (nom
 frames from the importer), the physics base + residual (geometric calibration of the training
 points + the evidential ensemble), the geometric calibration alone, a plain MLP (3 x 128 ELU,
 MSE) on the frames-only residual, ``robocal gap``'s model of the training points, alone and
-as the base of a residual, and per seed the better of the two residual models on their fit's
-validation points (``best_on_validation``: what ``robocal train``'s default ``--base best``
-keeps). Test mean, p95, max (mm) and 90 % coverage; the trained models over ``--seeds`` seeds.
+as the base of a residual, and per seed the one of the two residual models that
+``robocal train``'s default ``--base best`` keeps (``best_on_validation``: the gap one where it
+predicts its fit's validation points clearly better). Test mean, p95, max (mm) and 90 %
+coverage; the trained models over ``--seeds`` seeds.
 
     .venv/bin/robocal import ipa ../shared/data/ur10-ipa/Series_A --out /tmp/a.parquet
     .venv/bin/robocal import ipa ../shared/data/ur10-ipa/Series_B --out /tmp/b.parquet

@@ -133,9 +133,8 @@ def train_on_dataset(
     out) clearly better (:func:`best_on_validation`)."""
     p = prepare(ds, test_fraction=test_fraction, seed=seed)
     train = np.sort(p.train)
-    kinds = _candidate_bases(base, p, train, data_frame(ds))
     fits = []
-    for physics in kinds:
+    for physics in _candidate_bases(base, p, train, data_frame(ds)):
         model = _new_model(p, model_cfg, train_cfg, seed, physics)
         fits.append((model, model.fit(p.X[p.train], p.Y[p.train], on_epoch=on_epoch)))
     model, report = best_on_validation(fits, p.X[p.train], p.Y[p.train])
