@@ -261,11 +261,8 @@ class ErrorModel:
     def validation_rows(self, n: int) -> np.ndarray:
         """The rows of ``n`` training points that :meth:`fit` (no ``X_val``, the config's
         fraction) holds out for validation: the same seeded draw (none below 10 points)."""
-        frac = self.train_cfg.val_fraction
-        if frac <= 0 or n < 10:
-            return np.empty(0, dtype=int)
         gen = torch.Generator().manual_seed(self.train_cfg.seed + self.seed)
-        return _validation_split(gen, n, frac)[1]
+        return _validation_split(gen, n, self.train_cfg.val_fraction)[1]
 
     def fit(
         self,
@@ -301,9 +298,10 @@ class ErrorModel:
             raise DatasetError("cannot fit on 0 points")
         gen = torch.Generator().manual_seed(cfg.seed + self.seed)
         frac = cfg.val_fraction if val_fraction is None else val_fraction
-        if X_val is None and frac > 0 and X.shape[0] >= 10:
+        if X_val is None:
             rest, held = _validation_split(gen, X.shape[0], frac)
-            X, Y, X_val, Y_val = X[rest], Y[rest], X[held], Y[held]
+            if len(held):
+                X, Y, X_val, Y_val = X[rest], Y[rest], X[held], Y[held]
         R = Y - self.base_error(X)  # the network learns what the base leaves
         self.envelope = widen(self.envelope, X[:, : self.spec.n_joints])
         self._ensure_label_scaler(R)
@@ -321,8 +319,10 @@ class ErrorModel:
 def _validation_split(
     gen: torch.Generator, n: int, fraction: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The rows of ``n`` (>= 10) training points that train and that validate, a ``fraction``
-    of them drawn from ``gen``."""
+    """The rows of ``n`` training points that train and that validate, a ``fraction`` of them
+    drawn from ``gen`` (none below 10 points or at fraction 0; ``gen`` then left as it was)."""
+    if fraction <= 0 or n < 10:
+        return np.arange(n), np.empty(0, dtype=int)
     order = torch.randperm(n, generator=gen).numpy()
     n_val = max(1, round(fraction * n))
     return order[n_val:], order[:n_val]
