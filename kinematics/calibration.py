@@ -33,7 +33,7 @@ from kinematics.effects._base import (
     frame_correction,
 )
 from kinematics.error_stats import ErrorStats
-from kinematics.errors import ConfigError, IdentifiabilityError
+from kinematics.errors import ConfigError, IdentifiabilityError, RobocalError
 from kinematics.identification.conditions import (
     Observations,
     cell_description,
@@ -44,6 +44,18 @@ from kinematics.model import RobotModel
 from kinematics.transforms import ARCMIN_PER_RAD, rotation_angle
 
 _DH_UNITS = ("m", "m", "rad", "rad", "rad")
+#: Tool motion (mm, RMS over the joint limits) of one standard deviation of the prior on each
+#: deviation (:func:`prior_std`). A
+#: calibration of poses from one region fits deviations that cancel there and add up
+#: elsewhere: 300 UR10 Series A points (condition number 3.5e3) least squares are 6.8 mm off on
+#: the rest of the series, 1.5 mm under this prior; well-spread data move by under 3 um
+#: (UR10 A and B, random arms). UR10 A's and B's least-squares deviations are 0.1-1.5 mm in
+#: these units (BENCHMARKS.md, "A prior on the DH deviations").
+PRIOR_MM = 0.3
+#: Joint configurations (uniform within the limits, seeded) :func:`prior_std` averages over.
+_PRIOR_SAMPLES = 256
+#: Effects that move frames, which a prior towards none would hold wrongly.
+_FRAME_EFFECTS = ("base_frame", "tool_frame", "tracker_drift")
 FRAME_FIELDS = ("x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad")
 
 
@@ -55,9 +67,13 @@ class CalibrationConfig:
     largest, is below this (unit-norm columns). ``min_points_per_parameter``: the least number
     of measured points per identified parameter. ``min_joint_range_deg``: every joint must move
     at least this much, or its parameters would be folded into others only for that angle.
+    ``prior_mm``: the DH deviations (and the effects ``robocal gap`` adds) are a MAP estimate
+    under a Gaussian prior, each one's standard deviation what moves the tool by this much (RMS
+    over the joint limits, :func:`prior_std`); None: least squares. Frames are always free.
     """
 
     rank_rtol: float = 1e-4
+    prior_mm: float | None = PRIOR_MM
     min_points_per_parameter: float = 1.0
     min_joint_range_deg: float = 1.0
     max_nfev: int = 50
@@ -74,6 +90,8 @@ class CalibrationConfig:
             raise ConfigError(
                 f"calibration.min_joint_range_deg must be >= 0, got {self.min_joint_range_deg}"
             )
+        if self.prior_mm is not None and not self.prior_mm > 0:
+            raise ConfigError(f"calibration.prior_mm must be > 0, got {self.prior_mm}")
         if self.max_nfev < 1:
             raise ConfigError(f"calibration.max_nfev must be >= 1, got {self.max_nfev}")
 
@@ -190,6 +208,34 @@ class CalibrationResult:
         }
 
 
+def prior_std(model: RobotModel, effect: Effect, prior_mm: float) -> np.ndarray:
+    """Per parameter of ``effect``, the standard deviation (its unit) of a Gaussian prior that
+    holds it to what moves the tool by ``prior_mm`` RMS over the robot's joint limits at rest
+    (rotations on a 1 m lever; no load, no temperature, t = 0): poses of one region cannot then
+    fit deviations that cancel there and grow elsewhere. Parameters nothing moves at rest, and
+    frame corrections (the tracker and the tool may sit anywhere), get none (infinite)."""
+    n = len(effect.parameter_names(model.description))
+    std = np.full(n, np.inf)
+    if effect.name in _FRAME_EFFECTS:
+        return std
+    desc = model.description
+    lower, upper = desc.limits_rad.T
+    q = np.random.default_rng(0).uniform(lower, upper, (_PRIOR_SAMPLES, desc.n_joints))
+    obs = Observations(
+        cond=Conditions(q=q, t=np.zeros(len(q))), T_measured=model.fk(q), T_W_0=np.eye(4)
+    )
+    try:
+        J = jacobian(model, obs, [(effect, np.zeros(n))], 1.0)
+    except RobocalError:  # needs conditions that rest does not give (temperatures, approach)
+        return std
+    moved = np.sqrt(np.mean(np.sum(J.reshape(len(q), 6, -1) ** 2, axis=1), axis=0))
+    held = moved > 0
+    if isinstance(effect, GeometricFrames):
+        held &= np.asarray(effect.free) < len(DH_FIELDS) * desc.n_joints
+    std[held] = prior_mm * 1e-3 / moved[held]
+    return std
+
+
 def calibrate(
     desc: RobotDescription, ds: Dataset, config: CalibrationConfig | None = None
 ) -> CalibrationResult:
@@ -233,7 +279,9 @@ def _calibrate(desc: RobotDescription, ds: Dataset, config: CalibrationConfig) -
     obs = observations_from_dataset(ds, desc)
     ident = identify(model, obs, config)
     effect = GeometricFrames(desc, ident.kept_index)
-    fit = fit_effects(model, obs, [(effect, np.zeros(len(ident.kept)))], max_nfev=config.max_nfev)
+    prior = None if config.prior_mm is None else prior_std(model, effect, config.prior_mm)
+    start = [(effect, np.zeros(len(ident.kept)))]
+    fit = fit_effects(model, obs, start, max_nfev=config.max_nfev, prior_std=prior)
     values = effect.full(fit.params[0])
     calibrated, T_W_0 = apply_calibration(desc, obs.T_W_0, values)
     predicted = T_W_0[None] @ RobotModel(calibrated).fk(obs.cond.q)
@@ -281,8 +329,10 @@ __all__ = [
     "Identifiability",
     "ResidualStats",
     "apply_calibration",
+    "PRIOR_MM",
     "calibrate",
     "calibration_parameter_names",
+    "prior_std",
     "identifiable",
     "identify",
     "residual_stats",

@@ -58,8 +58,9 @@ from learner.features import FeatureSpec
 #: Points ``auto`` identifies the geometric base from (the first of the stream).
 IDENTIFY_POINTS = 200
 #: Largest condition number (unit-norm columns) of an ``auto`` base: the first points of a real
-#: stream often lie in one region, where a calibration fits them and extrapolates by mm (UR10
-#: Series A in time order: condition 3.4e3, 11 mm off on the rest against 0.74 mm nominal).
+#: stream often lie in one region, where a calibration fits them and extrapolates worse than
+#: the nominal (UR10 Series A in time order, 50 points: condition 3.3e3, 1.7 mm off on the rest
+#: against 0.77 mm nominal; 9 mm before the calibration prior).
 AUTO_MAX_CONDITION = 100.0
 #: Effects a base evaluates from model features alone (others need signals a model lacks).
 _FEATURE_EFFECTS = ("geometric", "joint_compliance", "thermal_expansion", "gear_periodic")

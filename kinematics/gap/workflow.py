@@ -29,6 +29,7 @@ from kinematics.calibration import (
     ResidualStats,
     apply_calibration,
     identify,
+    prior_std,
     residual_stats,
 )
 from kinematics.dataset import Dataset
@@ -186,6 +187,15 @@ def _start_blocks(
     return [(GeometricFrames(desc, ident.kept_index), np.zeros(len(ident.kept)))]
 
 
+def _prior_std(blocks: list[Block], model: RobotModel, config: GapConfig) -> np.ndarray | None:
+    """Calibration's prior (:func:`~kinematics.calibration.prior_std`) on every block's
+    parameters; None without one."""
+    prior_mm = config.calibration.prior_mm
+    if not blocks or prior_mm is None:
+        return None
+    return np.concatenate([prior_std(model, effect, prior_mm) for effect, _ in blocks])
+
+
 def run_gap(
     desc: RobotDescription,
     ds: Dataset,
@@ -214,7 +224,13 @@ def _run_gap(desc, ds, config, progress) -> GapResult:
     options = _effect_options(ds, config)
     blocks = _start_blocks(config.start, model, obs_tr, config)
     say(f"fitting the {config.start} start")
-    fit = fit_effects(model, obs_tr, blocks, max_nfev=config.calibration.max_nfev)
+    fit = fit_effects(
+        model,
+        obs_tr,
+        blocks,
+        max_nfev=config.calibration.max_nfev,
+        prior_std=_prior_std(blocks, model, config),
+    )
     blocks = fit.blocks([e for e, _ in blocks])
     xyz = model.fk(obs_te.cond.q)[:, :3, 3]
     labels = region_labels(obs_te, xyz, None if deflection is None else deflection[test])
@@ -246,11 +262,13 @@ def _run_gap(desc, ds, config, progress) -> GapResult:
         new = Restricted(by_name[top.effect], desc, top.kept_index)
         effects = [*(e for e, _ in blocks), new]
         start = [*(p for _, p in blocks), np.zeros(len(top.kept_index))]
+        blocks = list(zip(effects, start, strict=True))
         fit = fit_effects(
             model,
             obs_tr,
-            list(zip(effects, start, strict=True)),
+            blocks,
             max_nfev=config.calibration.max_nfev,
+            prior_std=_prior_std(blocks, model, config),
         )
         blocks = fit.blocks(effects)
         included.add(top.effect)

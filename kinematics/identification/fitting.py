@@ -192,7 +192,8 @@ def _moved(Jch, effect, model, p, j, h, pert, obs) -> np.ndarray:
 
 @dataclass(frozen=True, kw_only=True)
 class FitResult:
-    """Fitted parameters per block with standard uncertainties, and the residual."""
+    """Fitted parameters per block with standard uncertainties (and ``cov``, the prior's rows
+    included), the residual and ``jac``, the Jacobian of its weighted rows (without them)."""
 
     params: list[np.ndarray]
     std: list[np.ndarray]
@@ -219,10 +220,11 @@ def fit_effects(
 
     Uncertainties are ``sqrt(diag(s^2 (J^T J)^+))`` with ``s^2 = RSS / (6N - p)``. With
     ``prior_std`` (one per parameter, in its unit) the fit is a MAP estimate under a Gaussian
-    prior centred on the start values: one residual row ``s_p (x - x0) / prior_std`` per
+    prior centred on zero (every parameter is a deviation from the model, zero is none,
+    whatever the start values): one residual row ``s_p x / prior_std`` per
     parameter, ``s_p`` the RMS position residual per component of a first, free fit (what
     these parameters cannot explain: the points' noise), so a parameter the points hardly
-    excite stays near its start.
+    excite stays near zero. An infinite ``prior_std`` leaves its parameter free.
     (A Cauchy prior, which lets a clearly shown move go, released the tilt that one region's
     local error fakes: UR10 B -> A frames from 10 points 1.03 mm against 0.77 mm Gaussian.)
     """
@@ -237,17 +239,17 @@ def fit_effects(
         if rotation_weight_m is None:
             w = float(s_pos / s_rot) if s_rot > 0 and s_pos > 0 else 1.0
         if prior_std is not None and prior is None:  # the noise: what the free fit leaves
-            prior = (x0, np.asarray(prior_std, dtype=float), max(s_pos, 1e-12))
+            prior = (np.zeros_like(x0), np.asarray(prior_std, dtype=float), max(s_pos, 1e-12))
     fitted = _split(x, blocks)
     J = jacobian(model, obs, fitted, w)
     E = residual_matrix(model, obs, fitted)
-    r = _weighted(E, w)
+    r, J_post = _weighted(E, w), J
     if prior is not None:
         r_prior, J_prior = _prior_rows(x, *prior)
-        J, r = np.concatenate([J, J_prior]), np.concatenate([r, r_prior])
+        J_post, r = np.concatenate([J, J_prior]), np.concatenate([r, r_prior])
     dof = max(r.size - x.size, 1)
     rss = float(r @ r)
-    cov = rss / dof * np.linalg.pinv(J.T @ J) if x.size else np.zeros((0, 0))
+    cov = rss / dof * np.linalg.pinv(J_post.T @ J_post) if x.size else np.zeros((0, 0))
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
     return FitResult(
         params=[p for _, p in fitted],
@@ -264,8 +266,10 @@ def fit_effects(
 def _prior_rows(
     x: np.ndarray, centre: np.ndarray, std: np.ndarray, s_p: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Rows ``s_p (x - centre) / std`` of a Gaussian prior and their Jacobian (diagonal)."""
-    return s_p * (x - centre) / std, np.diag(s_p / std)
+    """Rows ``s_p (x - centre) / std`` of a Gaussian prior and their Jacobian (diagonal); a
+    parameter with an infinite ``std`` has no prior and no row."""
+    held = np.isfinite(std)
+    return s_p * (x - centre)[held] / std[held], np.diag(s_p / std)[held]
 
 
 def _solve(model, obs, blocks, x0, w, max_nfev, prior=None) -> np.ndarray:

@@ -57,15 +57,16 @@ def test_auto_falls_back_to_nominal_when_the_points_cannot_identify(points):
 @pytest.mark.shared_data
 def test_auto_keeps_the_nominal_when_the_first_points_lie_in_one_region(shared_data):
     """A real stream starts in one region: a calibration of its first points fits them and
-    extrapolates by mm (UR10 Series A in time order); ``auto`` then stays on the nominal."""
+    extrapolates worse than the nominal (UR10 Series A in time order); ``auto`` then stays on
+    the nominal."""
     ds = import_series(shared_data / "ur10-ipa" / "Series_A").dataset
     p = prepare(ds, test_fraction=0.0)
     first, rest = slice(0, 50), slice(2000, None)
     geometric = identify_base("geometric", p.spec, p.X[first], p.Y[first])
     nominal = RobotModel(p.spec.description)
-    assert _position_mm(p.Y[rest] - geometric.error(p.spec, p.X[rest], nominal)) > 3 * (
+    assert _position_mm(p.Y[rest] - geometric.error(p.spec, p.X[rest], nominal)) > 2 * (
         _position_mm(p.Y[rest])
-    )  # why: the region's calibration is mm off elsewhere
+    )  # why: the region's calibration is 1.7 mm off elsewhere, the nominal 0.77 mm
     base = identify_base("auto", p.spec, p.X[first], p.Y[first])
     assert base.kind == "auto" and base.note.startswith("nominal:"), base.note
     assert "condition number" in base.note
@@ -74,6 +75,21 @@ def test_auto_keeps_the_nominal_when_the_first_points_lie_in_one_region(shared_d
     assert _position_mm(p.Y[rest] - spread.error(p.spec, p.X[rest], nominal)) < 0.7 * (
         _position_mm(p.Y[rest])
     )
+
+
+@pytest.mark.shared_data
+@pytest.mark.parametrize("kind", ["geometric", "gap"])
+def test_a_base_of_one_regions_points_stays_within_mm_elsewhere(shared_data, kind):
+    """600 points of one region of UR10 Series A (condition number 4.5e3): fitted freely, the
+    geometric base was 6 mm and the gap base 535 mm off on the rest of the series; the
+    calibration prior (``CalibrationConfig.prior_mm``) holds both near 1.3 mm (nominal 0.8)."""
+    ds = import_series(shared_data / "ur10-ipa" / "Series_A").dataset
+    p = prepare(ds, test_fraction=0.0)
+    region, rest = slice(3000, 3600), slice(4000, None)
+    base = identify_base(kind, p.spec, p.X[region], p.Y[region])
+    nominal = RobotModel(p.spec.description)
+    assert _position_mm(p.Y[region] - base.error(p.spec, p.X[region], nominal)) < 0.3
+    assert _position_mm(p.Y[rest] - base.error(p.spec, p.X[rest], nominal)) < 2.0
 
 
 def test_an_auto_base_left_on_the_nominal_is_identified_later_from_spread_points(points):

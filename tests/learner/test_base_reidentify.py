@@ -81,7 +81,8 @@ def test_a_real_days_first_points_tilt_the_frames_less_under_the_prior(shared_da
 
     held = error_mm(reidentify_frames(base, b.spec, b.X[:10], b.Y[:10]))
     free = error_mm(reidentify_frames(base, b.spec, b.X[:10], b.Y[:10], prior_m=None))
-    assert held < 0.85 * free
+    assert held < 0.95 * free  # measured 0.559 against 0.604 mm (0.563 / 0.677 before the
+    # calibration prior made the base itself extrapolate better)
 
 
 @pytest.mark.parametrize("k", [10, 25])
