@@ -183,7 +183,8 @@ def identifiable(J: np.ndarray, names: tuple[str, ...], rank_rtol: float) -> Ide
 
 @dataclass(frozen=True, kw_only=True)
 class CalibrationResult:
-    """A calibrated description (tool = identified ``T_6_S``), ``T_W_0`` and the evidence."""
+    """A calibrated description (tool = identified ``T_6_S``), ``T_W_0`` and the evidence;
+    ``prior_mm`` the prior it was fitted under (None: least squares)."""
 
     description: RobotDescription
     T_W_0: np.ndarray
@@ -194,6 +195,7 @@ class CalibrationResult:
     rotation_weight_m: float
     rss: float
     dof: int
+    prior_mm: float | None = None
 
     def to_dict(self) -> dict:
         """A JSON-ready summary (parameters in SI, residuals in mm / arcmin)."""
@@ -202,6 +204,7 @@ class CalibrationResult:
             "dropped": list(self.identifiability.dropped),
             "condition_number": self.identifiability.condition_number,
             "parameters": self.values,
+            "prior_mm": self.prior_mm,
             "std": self.std,
             "residual": self.residual.to_dict(),
             "T_W_0": self.T_W_0.tolist(),
@@ -295,6 +298,7 @@ def _calibrate(desc: RobotDescription, ds: Dataset, config: CalibrationConfig) -
         rotation_weight_m=fit.rotation_weight_m,
         rss=fit.rss,
         dof=fit.dof,
+        prior_mm=config.prior_mm,
     )
 
 

@@ -52,7 +52,7 @@ from kinematics.identification.conditions import (
     cell_description,
     observations_from_dataset,
 )
-from kinematics.identification.fitting import Block, fit_effects, predicted_poses
+from kinematics.identification.fitting import Block, FitResult, fit_effects, predicted_poses
 from kinematics.model import RobotModel
 
 FOLDED = ("geometric", "base_frame", "tool_frame")
@@ -187,13 +187,14 @@ def _start_blocks(
     return [(GeometricFrames(desc, ident.kept_index), np.zeros(len(ident.kept)))]
 
 
-def _prior_std(blocks: list[Block], model: RobotModel, config: GapConfig) -> np.ndarray | None:
-    """Calibration's prior (:func:`~kinematics.calibration.prior_std`) on every block's
-    parameters; None without one."""
+def _fit(model: RobotModel, obs: Observations, blocks: list[Block], config: GapConfig) -> FitResult:
+    """``blocks`` fitted to ``obs`` under calibration's prior on every block's parameters
+    (:func:`~kinematics.calibration.prior_std`; none where ``prior_mm`` is None)."""
     prior_mm = config.calibration.prior_mm
-    if not blocks or prior_mm is None:
-        return None
-    return np.concatenate([prior_std(model, effect, prior_mm) for effect, _ in blocks])
+    prior = None
+    if blocks and prior_mm is not None:
+        prior = np.concatenate([prior_std(model, effect, prior_mm) for effect, _ in blocks])
+    return fit_effects(model, obs, blocks, max_nfev=config.calibration.max_nfev, prior_std=prior)
 
 
 def run_gap(
@@ -224,13 +225,7 @@ def _run_gap(desc, ds, config, progress) -> GapResult:
     options = _effect_options(ds, config)
     blocks = _start_blocks(config.start, model, obs_tr, config)
     say(f"fitting the {config.start} start")
-    fit = fit_effects(
-        model,
-        obs_tr,
-        blocks,
-        max_nfev=config.calibration.max_nfev,
-        prior_std=_prior_std(blocks, model, config),
-    )
+    fit = _fit(model, obs_tr, blocks, config)
     blocks = fit.blocks([e for e, _ in blocks])
     xyz = model.fk(obs_te.cond.q)[:, :3, 3]
     labels = region_labels(obs_te, xyz, None if deflection is None else deflection[test])
@@ -262,14 +257,7 @@ def _run_gap(desc, ds, config, progress) -> GapResult:
         new = Restricted(by_name[top.effect], desc, top.kept_index)
         effects = [*(e for e, _ in blocks), new]
         start = [*(p for _, p in blocks), np.zeros(len(top.kept_index))]
-        blocks = list(zip(effects, start, strict=True))
-        fit = fit_effects(
-            model,
-            obs_tr,
-            blocks,
-            max_nfev=config.calibration.max_nfev,
-            prior_std=_prior_std(blocks, model, config),
-        )
+        fit = _fit(model, obs_tr, list(zip(effects, start, strict=True)), config)
         blocks = fit.blocks(effects)
         included.add(top.effect)
         named.append(named_effect(top, fit, scores, config.max_inflation, config.min_value_to_std))

@@ -1,6 +1,6 @@
 """CLI commands ``gap`` (the sim-vs-measured discrepancy workflow) and ``calibrate``.
 
-robocal calibrate --data paper.parquet --out calibrated.toml --json
+robocal calibrate --data paper.parquet --out calibrated.toml --json  # --prior-mm 0: least squares
 robocal gap --data paper.parquet --robot fanuc_m900ib700 --start geometric --report out/ --json
 """
 
@@ -10,6 +10,26 @@ import argparse
 import sys
 
 from stream.cli._base import Command, add_data_argument, add_json_flag, emit
+
+
+def add_prior_argument(parser: argparse.ArgumentParser) -> None:
+    """``--prior-mm``: the calibration prior (``CalibrationConfig.prior_mm``)."""
+    parser.add_argument(
+        "--prior-mm",
+        type=float,
+        default=None,
+        help="hold each DH deviation (and effect) to what moves the tool by this much, mm RMS "
+        "over the joint limits (default 0.3); 0: plain least squares",
+    )
+
+
+def calibration_config(args: argparse.Namespace, **settings):
+    """The calibration settings of ``args`` (``--prior-mm``) and ``settings``."""
+    from kinematics.calibration import CalibrationConfig
+
+    if args.prior_mm is not None:
+        settings["prior_mm"] = args.prior_mm or None
+    return CalibrationConfig(**settings)
 
 
 class Gap(Command):
@@ -27,6 +47,7 @@ class Gap(Command):
         parser.add_argument("--seed", type=int, default=0, help="seed of the held-out split")
         parser.add_argument("--level", type=float, default=0.01, help="test level (corrected)")
         parser.add_argument("--report", default=None, help="folder for gap.md, PNGs, .rrd, model")
+        add_prior_argument(parser)
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
@@ -36,7 +57,11 @@ class Gap(Command):
         from kinematics.gap.workflow import GapConfig
 
         config = GapConfig(
-            start=args.start, test_fraction=args.test_fraction, seed=args.seed, level=args.level
+            start=args.start,
+            test_fraction=args.test_fraction,
+            seed=args.seed,
+            level=args.level,
+            calibration=calibration_config(args),
         )
         with tqdm(desc="gap", file=sys.stderr, unit="step") as bar:
 
@@ -84,13 +109,13 @@ class Calibrate(Command):
         add_data_argument(parser, robot=True)
         parser.add_argument("--out", default=None, help="write the calibrated model TOML here")
         parser.add_argument("--rank-rtol", type=float, default=1e-4, help="QR drop tolerance")
+        add_prior_argument(parser)
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
-        from kinematics.calibration import CalibrationConfig
         from kinematics.gap.files import calibrate_from_files
 
-        config = CalibrationConfig(rank_rtol=args.rank_rtol)
+        config = calibration_config(args, rank_rtol=args.rank_rtol)
         result = calibrate_from_files(args.data, args.robot, config)
         if args.out is not None:
             from stream.reports.gap import write_calibrated_model

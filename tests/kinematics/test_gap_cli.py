@@ -43,6 +43,13 @@ def test_calibrate_writes_a_loadable_model(backlash_file, tmp_path, capsys):
     assert len(out["kept"]) == 30 and out["residual"]["mean_mm"] > 0
     assert load_description(out_path).name == "fanuc_m900ib700"
     assert load_model_file(out_path).effects == ()
+    # --prior-mm 0: plain least squares, which fits these poses no better
+    argv = ["calibrate", "--data", str(backlash_file), "--prior-mm", "0", "--json"]
+    assert main(argv) == 0
+    free = json.loads(capsys.readouterr().out)
+    assert free["residual"]["mean_mm"] <= out["residual"]["mean_mm"] * 1.01
+    assert (out["prior_mm"], free["prior_mm"]) == (0.3, None)
+    assert free["parameters"] != out["parameters"]
 
 
 def test_bad_input_exits_2_with_one_line(backlash_file, tmp_path, capsys):
@@ -51,3 +58,5 @@ def test_bad_input_exits_2_with_one_line(backlash_file, tmp_path, capsys):
     assert err.startswith("robocal: error: dataset is of robot 'fanuc_m900ib700'")
     assert main(["calibrate", "--data", str(tmp_path / "missing.parquet")]) == 2
     assert "no such dataset file" in capsys.readouterr().err
+    assert main(["calibrate", "--data", str(backlash_file), "--prior-mm", "-1"]) == 2
+    assert "calibration.prior_mm must be > 0, got -1" in capsys.readouterr().err
