@@ -15,10 +15,10 @@ the model still predicts DESIGN.md's label, the pose error against the nominal. 
   above :data:`AUTO_MAX_CONDITION`: poses from one region; the snapshot says why);
 - a path: a calibrated model file (``robocal calibrate --out``) or ``robocal gap``'s model file.
 
-On real UR10 series the geometric base with a residual network is the most accurate single
-kind (BENCHMARKS.md, "Real UR10": ``gap`` is better on Series B, worse on A); on random arms
-whose effects the gap workflow names, ``gap`` reaches the noise floor. So ``robocal train``
-trains on both and keeps ``gap`` only where it is clearly better on validation points
+On real UR10 series the geometric and the gap base with a residual network are within a few
+per cent (BENCHMARKS.md, "Real UR10": the same on Series A, ``gap`` 7 % better on B); on random
+arms whose effects the gap workflow names, ``gap`` reaches the noise floor. So ``robocal
+train`` trains on both and keeps ``gap`` where it is better on validation points by a margin
 (``best``, :func:`learner.workflow.best_on_validation`).
 
 >>> from kinematics.description import load_description

@@ -30,9 +30,9 @@ STREAM_BASE_KINDS = ("nominal", "geometric", "auto")
 #: default and the benches' base.
 DEFAULT_BASE = "geometric"
 #: ``robocal train``'s default: the residual trained on the ``geometric`` and on the ``gap``
-#: base, the gap one kept only where its validation error is clearly lower
+#: base, the gap one kept where its validation error is lower by a margin
 #: (:func:`learner.workflow.best_on_validation`): on random arms whose effects it names it wins
-#: by 1.4-2.4 x, on the real UR10 by at most 5 %, and fitted effects extrapolate worse.
+#: by 1.1-5 x, on the real UR10 by 0-7 %.
 SELECTED_BASE = "best"
 #: Prior of a re-identified frame parameter (:func:`learner.carry.reidentify_frames`): a
 #: Gaussian whose std moves the tool pose by this much (mm, RMS over the new points; rotations
