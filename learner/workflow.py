@@ -15,7 +15,7 @@ import numpy as np
 
 from kinematics.dataset import Dataset
 from kinematics.description import RobotDescription
-from kinematics.errors import ConfigError, DatasetError
+from kinematics.errors import ConfigError, DatasetError, IdentifiabilityError
 from kinematics.identity import check_match, description_for
 from kinematics.model import RobotModel
 from learner.base import (
@@ -23,6 +23,7 @@ from learner.base import (
     check_same_robot,
     data_frame,
     make_base,
+    nominal_base,
 )
 from learner.config import (
     SELECTED_BASE,
@@ -153,14 +154,18 @@ def _candidate_bases(
     """The bases to train on: ``base``'s, or for ``best`` the geometric and the gap base. The
     gap base is left out, and the note says why, where it names nothing beyond the geometry
     (the same base: not trained twice) or the data cannot form it (e.g. thermometers the
-    description's map names are missing)."""
+    description's map names are missing); both, for the nominal, where the points cannot
+    identify a calibration."""
     X, Y = p.X[train], p.Y[train]
     if base != SELECTED_BASE:
         return [make_base(base, p.spec, X, Y, frame)]
-    geometric = make_base("geometric", p.spec, X, Y, frame)
+    try:
+        geometric = make_base("geometric", p.spec, X, Y, frame)
+    except IdentifiabilityError as exc:  # too few points or a joint that never moves
+        return [replace(nominal_base(p.spec.description), note=f"nominal: {exc}")]
     try:
         gap = make_base("gap", p.spec, X, Y, frame)
-    except DatasetError as exc:
+    except (DatasetError, IdentifiabilityError) as exc:  # e.g. its own split leaves too few
         return [replace(geometric, note=f"{geometric.note}; no gap base: {exc}")]
     if not any(e.name != "geometric" for e in gap.effects):
         return [replace(geometric, note=f"{geometric.note}; the gap model names no effect")]

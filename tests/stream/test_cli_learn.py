@@ -105,6 +105,22 @@ def test_train_on_a_gap_base_in_one_step(data_file, tmp_path, capsys):
     assert "`robocal gap`'s model file" in capsys.readouterr().err.splitlines()[-1]
 
 
+def test_train_on_few_points_keeps_the_bases_they_identify(tmp_path, capsys):
+    """Few points: the default ``best`` trains on what they identify and says why it left the
+    rest out (40: the gap workflow's own split is too small; 30: the calibration too);
+    ``--base geometric`` stops with one line."""
+    for n, kind, why in [(40, "geometric", "no gap base: calibration needs"), (30, "nominal", "")]:
+        write_dataset(make_dataset(n, seed=5), tmp_path / "few.parquet")
+        out = tmp_path / "m.safetensors"
+        argv = ["train", "--data", str(tmp_path / "few.parquet"), "--out", str(out)]
+        assert main([*argv, "--max-epochs", "3", "--json"]) == 0
+        base = _json(capsys)["base"]
+        assert base["kind"] == kind and why in base["note"], base
+    assert "nominal: calibration needs at least" in base["note"], base
+    assert main([*argv, "--max-epochs", "3", "--base", "geometric"]) == 2
+    assert "calibration needs at least" in capsys.readouterr().err.splitlines()[-1]
+
+
 def test_train_keeps_the_base_that_predicts_its_validation_points_better(
     data_file, tmp_path, capsys
 ):
