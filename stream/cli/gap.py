@@ -8,8 +8,12 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
 
 from stream.cli._base import Command, add_data_argument, add_json_flag, emit
+
+if TYPE_CHECKING:
+    from kinematics.calibration import CalibrationConfig
 
 
 def add_prior_argument(parser: argparse.ArgumentParser) -> None:
@@ -23,7 +27,7 @@ def add_prior_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def calibration_config(args: argparse.Namespace, **settings):
+def calibration_config(args: argparse.Namespace, **settings: float) -> CalibrationConfig:
     """The calibration settings of ``args`` (``--prior-mm``) and ``settings``."""
     from kinematics.calibration import CalibrationConfig
 
