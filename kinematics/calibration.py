@@ -39,18 +39,17 @@ from kinematics.identification.conditions import (
     cell_description,
     observations_from_dataset,
 )
-from kinematics.identification.fitting import fit_effects, jacobian
+from kinematics.identification.fitting import fit_effects, jacobian, tool_motion_rms
 from kinematics.model import RobotModel
 from kinematics.transforms import ARCMIN_PER_RAD, rotation_angle
 
 _DH_UNITS = ("m", "m", "rad", "rad", "rad")
 #: Tool motion (mm, RMS over the joint limits) of one standard deviation of the prior on each
-#: deviation (:func:`prior_std`). A
-#: calibration of poses from one region fits deviations that cancel there and add up
-#: elsewhere: 300 UR10 Series A points (condition number 3.5e3) least squares are 6.8 mm off on
-#: the rest of the series, 1.5 mm under this prior; well-spread data move by under 3 um
-#: (UR10 A and B, random arms). UR10 A's and B's least-squares deviations are 0.1-1.5 mm in
-#: these units (BENCHMARKS.md, "A prior on the DH deviations").
+#: deviation (:func:`prior_std`). A calibration of poses from one region fits deviations that
+#: cancel there and add up elsewhere: on UR10 Series A's first 200 points least squares is
+#: 9.6 mm off on the rest of the series, 0.8 mm under this prior; spread data move by 3 um at
+#: most (UR10 A and B, random arms). UR10 A's and B's least-squares deviations are 0.1-1.5 mm
+#: in these units (``bench/calibration_prior.py``; BENCHMARKS.md, "A prior on the deviations").
 PRIOR_MM = 0.3
 #: Joint configurations (uniform within the limits, seeded) :func:`prior_std` averages over.
 _PRIOR_SAMPLES = 256
@@ -231,7 +230,7 @@ def prior_std(model: RobotModel, effect: Effect, prior_mm: float) -> np.ndarray:
         J = jacobian(model, obs, [(effect, np.zeros(n))], 1.0)
     except RobocalError:  # needs conditions that rest does not give (temperatures, approach)
         return std
-    moved = np.sqrt(np.mean(np.sum(J.reshape(len(q), 6, -1) ** 2, axis=1), axis=0))
+    moved = tool_motion_rms(J)
     held = moved > 0
     if isinstance(effect, GeometricFrames):
         held &= np.asarray(effect.free) < len(DH_FIELDS) * desc.n_joints

@@ -26,7 +26,7 @@ from kinematics.calibration import (
 from kinematics.description import RobotDescription
 from kinematics.effects import Conditions, Effect, Perturbation
 from kinematics.identification.conditions import observations_from_dataset
-from kinematics.identification.fitting import FitResult, fit_effects, jacobian
+from kinematics.identification.fitting import FitResult, fit_effects, jacobian, tool_motion_rms
 from kinematics.model import RobotModel
 from learner.base import PhysicsBase, measured_dataset
 from learner.config import FRAME_PRIOR_MM
@@ -70,8 +70,7 @@ def reidentify_frames(
     frames = GeometricFrames(desc, tuple(free[i] for i in kept.kept_index))
     prior_std = None
     if prior_m is not None:  # each parameter: what moves the tool by prior_m (RMS) here
-        moved = J[:, list(kept.kept_index)].reshape(len(X), 6, -1)  # rad count as m (1 m lever)
-        prior_std = prior_m / np.sqrt(np.mean(np.sum(moved**2, axis=1), axis=0))
+        prior_std = prior_m / tool_motion_rms(J[:, list(kept.kept_index)])
     blocks = [(frames, np.zeros(len(kept.kept))), *held]
     fit = fit_effects(base.model, obs, blocks, prior_std=prior_std)
     calibrated, T_0_B = apply_calibration(desc, obs.T_W_0, frames.full(fit.params[0]))

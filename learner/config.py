@@ -24,7 +24,8 @@ ENCODINGS = ("kinematic", "minmax")
 #: Physics bases the learner can identify itself (:mod:`learner.base`; a file is a path).
 BASE_KINDS = ("nominal", "geometric", "auto", "gap")
 #: The kinds a stream identifies from its first points; a gap model needs every training point
-#: at once (from UR10 Series B's first 50 it was 1.97 mm off): pass ``robocal gap``'s file.
+#: at once (from UR10 Series A's first 50 it is 1.1 mm off on the rest of the series, under the
+#: calibration prior): pass ``robocal gap``'s file.
 STREAM_BASE_KINDS = ("nominal", "geometric", "auto")
 #: The one base that measured best on real data (BENCHMARKS.md, "Real UR10"): ``robocal hpo``'s
 #: default and the benches' base.

@@ -182,6 +182,13 @@ def jacobian(
     return np.stack(cols, axis=1) if cols else np.zeros((6 * N, 0))
 
 
+def tool_motion_rms(J: np.ndarray) -> np.ndarray:
+    """Per column of a :func:`jacobian` taken with rotation weight 1 (``(6N, p)``), how far a unit
+    change of that parameter moves the tool pose, RMS over the ``N`` points (m per unit;
+    rotations count on a 1 m lever): the scale a prior on the parameter is stated in."""
+    return np.sqrt(np.mean(np.sum(J.reshape(-1, 6, J.shape[1]) ** 2, axis=1), axis=0))
+
+
 def _moved(Jch, effect, model, p, j, h, pert, obs) -> np.ndarray:
     """The pose change ``(N, 6)`` (base frame) when parameter ``j`` of ``effect`` grows by h."""
     dx = np.zeros(len(p))
