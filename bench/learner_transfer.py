@@ -13,7 +13,9 @@ ones. Both directions, ``--seeds`` seeds. ``--cache DIR`` keeps the trained sour
 (by series, base, seed and epochs) for the next run. ``--base-a`` / ``--base-b`` are the
 source models' bases (a kind or a model file, e.g. ``robocal gap``'s), ``--frame-prior-mm`` /
 ``--moved-frame-prior-mm`` the carry's frame priors (equal: no choice; ``ContinualConfig``);
-``frames_moved`` is the share of seeds whose carry took the frames as moved.
+``frames_moved`` is the share of seeds whose carry took the frames as moved. ``--order
+spread`` draws the k points at random from the new series instead (seeded): a day that starts
+with a reference program over the workspace.
 
     .venv/bin/python bench/learner_transfer.py --a /tmp/a.parquet --b /tmp/b.parquet --seeds 0 1 2
 """
@@ -48,9 +50,17 @@ STEPS = (0, 10, 25, 50, 100)
 
 
 def transfer(
-    source: str, target: str, seed: int, epochs: int, folder: Path, base: str, priors: tuple
+    source: str,
+    target: str,
+    seed: int,
+    epochs: int,
+    folder: Path,
+    base: str,
+    priors: tuple,
+    order: str = "recorded",
 ) -> dict:
-    """One source model (trained on ``base``, cached in ``folder``) carried to ``target``."""
+    """One source model (trained on ``base``, cached in ``folder``) carried to ``target``, on
+    the new series' points in ``order`` (``recorded`` or ``spread``)."""
     tag = "" if base == DEFAULT_BASE else f"_{Path(base).parent.name}_{Path(base).stem}"
     model_path = folder / f"{Path(source).stem}{tag}_seed{seed}_e{epochs}.safetensors"
     src = read_dataset(source)
@@ -68,6 +78,8 @@ def transfer(
     epi_src = np.sqrt(model.predict(p_src.X[p_src.test]).epistemic()[:, :3]).mean()
     p = prepare(read_dataset(target), test_fraction=0.1, seed=0, spec=model.spec)
     stream = np.sort(p.train)
+    if order == "spread":
+        stream = np.random.default_rng(seed).permutation(p.train)
     X, Y, Xte, Yte = p.X[stream], p.Y[stream], p.X[p.test], p.Y[p.test]
     rows = []
     for k in STEPS:
@@ -123,6 +135,7 @@ def main() -> None:
     ap.add_argument("--base-b", default=DEFAULT_BASE, help="B's base: a kind or a model file")
     ap.add_argument("--frame-prior-mm", type=float, default=FRAME_PRIOR_MM)
     ap.add_argument("--moved-frame-prior-mm", type=float, default=MOVED_FRAME_PRIOR_MM)
+    ap.add_argument("--order", choices=("recorded", "spread"), default="recorded")
     args = ap.parse_args()
     torch.set_num_threads(1)
     out = {}
@@ -133,7 +146,8 @@ def main() -> None:
         directions = {"A->B": (args.a, args.b, args.base_a), "B->A": (args.b, args.a, args.base_b)}
         for name, (src, dst, base) in directions.items():
             runs = [
-                transfer(src, dst, s, args.max_epochs, folder, base, priors) for s in args.seeds
+                transfer(src, dst, s, args.max_epochs, folder, base, priors, args.order)
+                for s in args.seeds
             ]
             steps = [
                 {
