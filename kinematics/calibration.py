@@ -39,7 +39,13 @@ from kinematics.identification.conditions import (
     cell_description,
     observations_from_dataset,
 )
-from kinematics.identification.fitting import fit_effects, jacobian, tool_motion_rms
+from kinematics.identification.fitting import (
+    Block,
+    FitResult,
+    fit_effects,
+    jacobian,
+    tool_motion_rms,
+)
 from kinematics.model import RobotModel
 from kinematics.transforms import ARCMIN_PER_RAD, rotation_angle
 
@@ -238,6 +244,18 @@ def prior_std(model: RobotModel, effect: Effect, prior_mm: float) -> np.ndarray:
     return std
 
 
+def fit_under_prior(
+    model: RobotModel, obs: Observations, blocks: list[Block], config: CalibrationConfig
+) -> FitResult:
+    """``blocks`` fitted to ``obs`` under :func:`prior_std`'s prior on every block's parameters
+    at ``config.prior_mm`` (none where it is None): calibration, the gap workflow's fits and a
+    base fitted again all hold their deviations this way."""
+    prior = None
+    if blocks and config.prior_mm is not None:
+        prior = np.concatenate([prior_std(model, effect, config.prior_mm) for effect, _ in blocks])
+    return fit_effects(model, obs, blocks, max_nfev=config.max_nfev, prior_std=prior)
+
+
 def calibrate(
     desc: RobotDescription, ds: Dataset, config: CalibrationConfig | None = None
 ) -> CalibrationResult:
@@ -281,9 +299,7 @@ def _calibrate(desc: RobotDescription, ds: Dataset, config: CalibrationConfig) -
     obs = observations_from_dataset(ds, desc)
     ident = identify(model, obs, config)
     effect = GeometricFrames(desc, ident.kept_index)
-    prior = None if config.prior_mm is None else prior_std(model, effect, config.prior_mm)
-    start = [(effect, np.zeros(len(ident.kept)))]
-    fit = fit_effects(model, obs, start, max_nfev=config.max_nfev, prior_std=prior)
+    fit = fit_under_prior(model, obs, [(effect, np.zeros(len(ident.kept)))], config)
     values = effect.full(fit.params[0])
     calibrated, T_W_0 = apply_calibration(desc, obs.T_W_0, values)
     predicted = T_W_0[None] @ RobotModel(calibrated).fk(obs.cond.q)
@@ -332,6 +348,7 @@ __all__ = [
     "Identifiability",
     "ResidualStats",
     "apply_calibration",
+    "fit_under_prior",
     "PRIOR_MM",
     "calibrate",
     "calibration_parameter_names",

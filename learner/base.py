@@ -40,13 +40,12 @@ import numpy as np
 import pandas as pd
 
 from kinematics.calibration import (
-    PRIOR_MM,
     CalibrationConfig,
     GeometricFrames,
     apply_calibration,
     calibrate,
+    fit_under_prior,
     identify,
-    prior_std,
 )
 from kinematics.dataset import (
     Dataset,
@@ -61,7 +60,6 @@ from kinematics.errors import ConfigError, IdentifiabilityError
 from kinematics.gap.model_file import EffectEntry, ModelFile, load_model_file
 from kinematics.gap.workflow import run_gap
 from kinematics.identification.conditions import observations_from_dataset
-from kinematics.identification.fitting import fit_effects
 from kinematics.model import RobotModel
 from kinematics.transforms import apply_error, invert, pose_error, xyz_quat_from_transform
 from learner.config import BASE_KINDS, DEFAULT_BASE
@@ -273,8 +271,7 @@ def refit_base(base: PhysicsBase, spec: FeatureSpec, X: np.ndarray, Y: np.ndarra
     ]
     blocks = [(geometry, np.zeros(len(ident.kept)))]
     blocks += [(effect, params[list(effect.free)]) for effect, params in effects]
-    prior = np.concatenate([prior_std(base.model, effect, PRIOR_MM) for effect, _ in blocks])
-    fit = fit_effects(base.model, obs, blocks, prior_std=prior)
+    fit = fit_under_prior(base.model, obs, blocks, CalibrationConfig())
     calibrated, T_0_B = apply_calibration(desc, obs.T_W_0, geometry.full(fit.params[0]))
     entries = tuple(
         replace(entry, parameters=_named(effect.effect.parameter_names(desc), effect.full(p)))

@@ -28,8 +28,8 @@ from kinematics.calibration import (
     GeometricFrames,
     ResidualStats,
     apply_calibration,
+    fit_under_prior,
     identify,
-    prior_std,
     residual_stats,
 )
 from kinematics.dataset import Dataset
@@ -52,7 +52,7 @@ from kinematics.identification.conditions import (
     cell_description,
     observations_from_dataset,
 )
-from kinematics.identification.fitting import Block, FitResult, fit_effects, predicted_poses
+from kinematics.identification.fitting import Block, predicted_poses
 from kinematics.model import RobotModel
 
 FOLDED = ("geometric", "base_frame", "tool_frame")
@@ -187,16 +187,6 @@ def _start_blocks(
     return [(GeometricFrames(desc, ident.kept_index), np.zeros(len(ident.kept)))]
 
 
-def _fit(model: RobotModel, obs: Observations, blocks: list[Block], config: GapConfig) -> FitResult:
-    """``blocks`` fitted to ``obs`` under calibration's prior on every block's parameters
-    (:func:`~kinematics.calibration.prior_std`; none where ``prior_mm`` is None)."""
-    prior_mm = config.calibration.prior_mm
-    prior = None
-    if blocks and prior_mm is not None:
-        prior = np.concatenate([prior_std(model, effect, prior_mm) for effect, _ in blocks])
-    return fit_effects(model, obs, blocks, max_nfev=config.calibration.max_nfev, prior_std=prior)
-
-
 def run_gap(
     desc: RobotDescription,
     ds: Dataset,
@@ -225,7 +215,7 @@ def _run_gap(desc, ds, config, progress) -> GapResult:
     options = _effect_options(ds, config)
     blocks = _start_blocks(config.start, model, obs_tr, config)
     say(f"fitting the {config.start} start")
-    fit = _fit(model, obs_tr, blocks, config)
+    fit = fit_under_prior(model, obs_tr, blocks, config.calibration)
     blocks = fit.blocks([e for e, _ in blocks])
     xyz = model.fk(obs_te.cond.q)[:, :3, 3]
     labels = region_labels(obs_te, xyz, None if deflection is None else deflection[test])
@@ -257,7 +247,8 @@ def _run_gap(desc, ds, config, progress) -> GapResult:
         new = Restricted(by_name[top.effect], desc, top.kept_index)
         effects = [*(e for e, _ in blocks), new]
         start = [*(p for _, p in blocks), np.zeros(len(top.kept_index))]
-        fit = _fit(model, obs_tr, list(zip(effects, start, strict=True)), config)
+        grown = list(zip(effects, start, strict=True))
+        fit = fit_under_prior(model, obs_tr, grown, config.calibration)
         blocks = fit.blocks(effects)
         included.add(top.effect)
         named.append(named_effect(top, fit, scores, config.max_inflation, config.min_value_to_std))
