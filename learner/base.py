@@ -59,7 +59,7 @@ from kinematics.effects import Conditions, Effect, Restricted, perturbed_poses
 from kinematics.errors import ConfigError, IdentifiabilityError
 from kinematics.gap.model_file import EffectEntry, ModelFile, load_model_file
 from kinematics.gap.workflow import run_gap
-from kinematics.identification.conditions import observations_from_dataset
+from kinematics.identification.conditions import Observations, observations_from_dataset
 from kinematics.model import RobotModel
 from kinematics.transforms import apply_error, invert, pose_error, xyz_quat_from_transform
 from learner.config import BASE_KINDS, DEFAULT_BASE
@@ -105,6 +105,12 @@ class PhysicsBase:
         return ModelFile(
             description=self.description, T_W_0=np.eye(4), effects=self.effects
         ).blocks()
+
+    def observations(self, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray) -> Observations:
+        """The points ``X, Y`` (labels against the nominal) as observations of the base's
+        robot in its frame ``T_0_B``: what its parameters are fitted to again."""
+        obs = observations_from_dataset(measured_dataset(spec, X, Y), self.description)
+        return replace(obs, T_W_0=self.T_0_B)
 
     def poses(self, spec: FeatureSpec, X: np.ndarray) -> np.ndarray:
         """Sensor poses ``T_0_S`` ``(N, 4, 4)`` in the data's base frame at raw features ``X``."""
@@ -257,9 +263,7 @@ def refit_base(base: PhysicsBase, spec: FeatureSpec, X: np.ndarray, Y: np.ndarra
     3000-4500, ``robocal gap``'s file as a base is 1.19 mm off on the test points, fitted again
     0.39 mm (the geometric base 0.46 mm). Too few points to identify the geometry: ``base`` as
     it is, its note says why."""
-    desc = base.description
-    obs = observations_from_dataset(measured_dataset(spec, X, Y), desc)
-    obs = replace(obs, T_W_0=base.T_0_B)
+    desc, obs = base.description, base.observations(spec, X, Y)
     try:
         ident = identify(base.model, obs, CalibrationConfig())
     except IdentifiabilityError as exc:

@@ -25,10 +25,9 @@ from kinematics.calibration import (
 )
 from kinematics.description import RobotDescription
 from kinematics.effects import Conditions, Effect, Perturbation
-from kinematics.identification.conditions import observations_from_dataset
 from kinematics.identification.fitting import FitResult, fit_effects, jacobian, tool_motion_rms
 from kinematics.model import RobotModel
-from learner.base import PhysicsBase, measured_dataset
+from learner.base import PhysicsBase
 from learner.config import FRAME_PRIOR_MM
 from learner.features import FeatureSpec
 
@@ -59,8 +58,7 @@ def reidentify_frames(
     desc = base.description
     n = desc.n_joints
     Y = np.asarray(Y, dtype=float) - (0.0 if residual is None else residual)
-    obs = observations_from_dataset(measured_dataset(spec, X, Y), desc)
-    obs = replace(obs, T_W_0=base.T_0_B)
+    obs = base.observations(spec, X, Y)
     free = tuple(5 * i + 4 for i in range(n)) if offsets else ()
     free += tuple(range(5 * n, 5 * n + 12))
     held = [(_Held(e, p), np.zeros(0)) for e, p in base.blocks()]
