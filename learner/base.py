@@ -45,6 +45,7 @@ from kinematics.calibration import (
     apply_calibration,
     calibrate,
     fit_under_prior,
+    identifiable,
     identify,
 )
 from kinematics.dataset import (
@@ -62,7 +63,7 @@ from kinematics.gap.workflow import run_gap
 from kinematics.identification.conditions import Observations, observations_from_dataset
 from kinematics.model import RobotModel
 from kinematics.transforms import apply_error, invert, pose_error, xyz_quat_from_transform
-from learner.config import BASE_KINDS, DEFAULT_BASE
+from learner.config import BASE_KINDS, DEFAULT_BASE, is_model_file
 from learner.features import FeatureSpec
 
 #: Points ``auto`` identifies the geometric base from (the first of the stream).
@@ -94,6 +95,10 @@ class PhysicsBase:
     #: frames one standard deviation out along each principal axis of their posterior,
     #: ``(r, 2, 4, 4)``, each ``T_0_B`` and tool; None otherwise.
     frame_sigma: np.ndarray | None = None
+    #: Effects of the base's model file that it leaves out (their signals are not features):
+    #: its other parameters are fitted again without them where there are points
+    #: (:func:`refit_base`; a continual learner as its points double).
+    left_out: tuple[str, ...] = ()
 
     @cached_property
     def model(self) -> RobotModel:
@@ -224,7 +229,8 @@ def gap_base(spec: FeatureSpec, X: np.ndarray, Y: np.ndarray) -> PhysicsBase:
     note += f", unnamed corrections of {', '.join(shapes)} shape" if shapes else ""
     note += f"; held-out {before:.4f} -> {after:.4f} mm"
     model = result.model_file()
-    return _model_base("gap", model, model.T_W_0, note)
+    base = _model_base("gap", model, model.T_W_0, note)
+    return refit_base(base, spec, X, Y) if base.left_out else base
 
 
 def file_base(
@@ -250,23 +256,28 @@ def file_base(
                 f"base file {path}: effect {entry.name!r} needs {temperature_column(needs[0])}"
             )
     base = _model_base("file", model, invert(frame) @ model.T_W_0, str(path))
-    if len(base.effects) < len(model.effects) and X is not None and len(X):
+    if base.left_out and X is not None and len(X):
         base = refit_base(base, spec, X, Y)
     return base
 
 
-def refit_base(base: PhysicsBase, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray) -> PhysicsBase:
+def refit_base(
+    base: PhysicsBase, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray, strict: bool = False
+) -> PhysicsBase:
     """``base`` fitted again to the points ``X, Y`` (labels against the nominal): its geometry
     and frames, and each effect's identified (non-zero) parameters from their values, under
     calibration's prior. A gap model file's effects were fitted beside backlash and tracker
     drift, which a base leaves out; without them they no longer fit. On UR10 A's points
     3000-4500, ``robocal gap``'s file as a base is 1.19 mm off on the test points, fitted again
     0.39 mm (the geometric base 0.46 mm). Too few points to identify the geometry: ``base`` as
-    it is, its note says why."""
+    it is, its note says why (``strict``: IdentifiabilityError). ``condition`` is the
+    condition number of all the parameters fitted (unit-norm columns), the effects' too."""
     desc, obs = base.description, base.observations(spec, X, Y)
     try:
         ident = identify(base.model, obs, CalibrationConfig())
     except IdentifiabilityError as exc:
+        if strict:
+            raise
         return replace(base, note=f"{base.note}; not fitted again: {exc}")
     geometry = GeometricFrames(desc, ident.kept_index)
     effects = [
@@ -281,8 +292,13 @@ def refit_base(base: PhysicsBase, spec: FeatureSpec, X: np.ndarray, Y: np.ndarra
         replace(entry, parameters=_named(effect.effect.parameter_names(desc), effect.full(p)))
         for entry, (effect, _), p in zip(base.effects, effects, fit.params[1:], strict=True)
     )
+    names = tuple(n for block, _ in blocks for n in block.parameter_names(desc))
+    cond = identifiable(fit.jac, names, CalibrationConfig().rank_rtol).condition_number
     note = f"{base.note}; the rest fitted again on {len(X)} points without them"
-    return replace(base, description=calibrated, T_0_B=T_0_B, effects=entries, note=note)
+    note += f", condition number {cond:.3g} (geometry {ident.condition_number:.3g})"
+    return replace(
+        base, description=calibrated, T_0_B=T_0_B, effects=entries, note=note, condition=cond
+    )
 
 
 def _named(names: tuple[str, ...], values: np.ndarray) -> dict[str, float]:
@@ -304,6 +320,7 @@ def _model_base(kind: str, model: ModelFile, T_0_B: np.ndarray, note: str) -> Ph
         T_0_B=T_0_B,
         effects=tuple(e for e in model.effects if e.name in _FEATURE_EFFECTS),
         note=note,
+        left_out=tuple(left_out),
     )
 
 
@@ -312,7 +329,7 @@ def make_base(
 ) -> PhysicsBase:
     """The base ``base`` names: a kind identified from the training points ``X, Y``, or a model
     file (``.toml``) whose ``T_W_0`` is against the tracker of the data's ``frame``."""
-    if str(base).endswith(".toml"):
+    if is_model_file(base):
         return file_base(base, spec, np.eye(4) if frame is None else frame, X, Y)
     return identify_base(base, spec, X, Y)
 

@@ -73,6 +73,11 @@ def _check_counts(cfg: object, section: str, names: tuple[str, ...]) -> None:
         )
 
 
+def is_model_file(base: str) -> bool:
+    """Whether ``base`` names a model file (``robocal calibrate``/``robocal gap``), not a kind."""
+    return str(base).endswith(".toml")
+
+
 def _check_choice(
     section: str, name: str, value: object, choices: tuple[str, ...], why: str = ""
 ) -> None:
@@ -223,7 +228,9 @@ class ContinualConfig:
     ``base`` is the physics base the first model is identified on from the ``init`` points
     (:mod:`learner.base`; a model that has one keeps it; :mod:`learner.continual_base` says
     when it is identified again); ``auto`` takes the nominal when they are too few to identify
-    it.
+    it. A model file (``.toml``, against the stream's tracker) is the base as it is; one that
+    leaves effects out is fitted to the stream as an identified base is
+    (:func:`learner.base.refit_base`).
     ``frame_prior_mm`` is how far a carried base's frames may move on a new day's first
     points, ``moved_frame_prior_mm`` how far when those points show that the tracker or tool
     moved (:meth:`ContinualLearner.carry`, :func:`learner.carry.carried_frames`); the day's
@@ -286,13 +293,15 @@ class ContinualConfig:
         _check(
             0.0 < self.average <= 1.0, f"continual.average must be in (0, 1], got {self.average}"
         )
-        _check_choice(
-            "continual",
-            "base",
-            self.base,
-            STREAM_BASE_KINDS,
-            "a gap model needs every training point at once: pass `robocal gap`'s model file",
-        )
+        if not is_model_file(self.base):
+            _check_choice(
+                "continual",
+                "base",
+                self.base,
+                STREAM_BASE_KINDS,
+                "or a model file (.toml); a gap model needs every training point at once: "
+                "pass `robocal gap`'s model file",
+            )
         _check(
             0.0 <= self.aci_rate <= 1.0,
             f"continual.aci_rate must be in [0, 1], got {self.aci_rate}",

@@ -37,7 +37,7 @@ from learner.base import PhysicsBase, identify_base, nominal_base
 from learner.carry import CarriedDay, carried_frames, held_out_labels
 from learner.config import ContinualConfig
 from learner.conformal import adapt_log_scale
-from learner.continual_base import doubled, due, memory_base, refined_base, status
+from learner.continual_base import REFINED, doubled, due, memory_base, refined_base, status
 from learner.continual_records import Memory, UpdateMetrics
 from learner.continual_state import (  # noqa: F401
     STATE_SCHEMA,
@@ -113,6 +113,8 @@ class ContinualLearner:
         start = time.perf_counter()
         if self.trained.base is None and self.trained.spec.description is not None:
             self.trained.base = identify_base(self.cfg.base, self.trained.spec, X, Y)
+        elif status(self.base) == "refitted":  # a model file's base: fitted to this stream
+            self.trained.base = refined_base(self.base, self.trained.spec, X, Y) or self.base
         report = self.trained.fit(X, Y, max_epochs=self.cfg.init_epochs, trainer=self.trainer)
         self.model = _copy(self.trained)
         self.version += 1
@@ -193,7 +195,7 @@ class ContinualLearner:
         """Identify the base again from every trained point ``X, Y`` each time they double, while
         the memory still holds them all (not on a carried day: its frames follow the day)."""
         grown = doubled(before, len(X), self.cfg.init)
-        if all_kept and grown and self.day is None and status(self.base) == "identified":
+        if all_kept and grown and self.day is None and status(self.base) in REFINED:
             base = refined_base(self.base, self.model.spec, X, Y)
             self.model.base = self.trained.base = base or self.base  # None: ill-conditioned
 

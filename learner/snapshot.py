@@ -185,6 +185,7 @@ def _base_meta(base: PhysicsBase) -> dict:
         "on_nominal": base.on_nominal,
         "description": description_to_toml(base.description),
         "effects": [asdict(e) for e in base.effects],
+        "left_out": list(base.left_out),
     }
 
 
@@ -204,6 +205,7 @@ def _base_from_meta(meta: dict | None, tensors: dict) -> PhysicsBase | None:
         condition=float("nan") if condition is None else float(condition),
         on_nominal=bool(meta.get("on_nominal", note.startswith("nominal:"))),
         frame_sigma=_frame_sigma(tensors),
+        left_out=tuple(map(str, meta.get("left_out", []))),
     )
 
 

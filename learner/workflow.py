@@ -30,6 +30,7 @@ from learner.config import (
     ContinualConfig,
     ModelConfig,
     TrainConfig,
+    is_model_file,
 )
 from learner.continual import ContinualLearner
 from learner.continual_records import UpdateMetrics
@@ -232,11 +233,10 @@ def continual_on_dataset(
     its model was trained on is reported."""
     if start is None:
         p = prepare(ds, test_fraction=test_fraction, seed=seed)
+        cfg = cfg if base is None else replace(cfg, base=base)
         physics = None  # identified by the learner from its first points
-        if base is not None and base.endswith(".toml"):
-            physics = make_base(base, p.spec, p.X[:0], p.Y[:0], data_frame(ds))
-        elif base is not None:
-            cfg = replace(cfg, base=base)
+        if is_model_file(cfg.base):  # fitted to them where it leaves effects out
+            physics = make_base(cfg.base, p.spec, p.X[:0], p.Y[:0], data_frame(ds))
         learner = ContinualLearner(_new_model(p, model_cfg, train_cfg, seed, physics), cfg)
     else:
         learner = start

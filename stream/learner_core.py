@@ -25,9 +25,10 @@ from safetensors.numpy import save as np_save
 
 from kinematics.description import RobotDescription
 from kinematics.errors import ConfigError, RobocalError, SnapshotError
+from kinematics.gap.model_file import load_model_file
 from kinematics.model import RobotModel
-from learner.base import check_same_robot
-from learner.config import ContinualConfig, ModelConfig, TrainConfig
+from learner.base import PhysicsBase, check_same_robot, file_base
+from learner.config import ContinualConfig, ModelConfig, TrainConfig, is_model_file
 from learner.continual import ContinualLearner, load_learner
 from learner.continual_records import UpdateMetrics
 from learner.continual_state import state_from_bytes, state_to_bytes
@@ -93,6 +94,9 @@ class LearnerCore:
         self._reidentify = False
         if cfg.start_from:
             self._start_from(cfg.start_from)
+        elif is_model_file(cfg.continual.base):  # stops at the start, not at the first batch
+            path = cfg.continual.base
+            check_same_robot(load_model_file(path).description, desc, f"base file {path}")
         self.last_seq = -1
         self.n_points = 0
         #: What the learner did with the latest batch (None while a batch is refused).
@@ -141,8 +145,10 @@ class LearnerCore:
             self.learner.carry(X, Y)
             self._reidentify = False
         if self.learner is None:
+            spec = self.spec_for(batch)
+            base = self._file_base(spec)
             model = ErrorModel.create(
-                self.spec_for(batch), self.cfg.model, self.cfg.train, self.cfg.seed, self.desc.name
+                spec, self.cfg.model, self.cfg.train, self.cfg.seed, self.desc.name, base
             )
             self.learner = ContinualLearner(model, self.cfg.continual)
             self.test = HeldOut(X.shape[1], self.cfg.max_test_points)
@@ -192,6 +198,19 @@ class LearnerCore:
             withheld=learner.n_withheld,
             t=time.time() if now is None else now,
         )
+
+    def _file_base(self, spec: FeatureSpec) -> PhysicsBase | None:
+        """The model file ``continual.base`` names as the base (None: a kind the learner
+        identifies), its ``T_W_0`` against this cell's tracker; a stream without a thermometer
+        the file's effects need is refused batch by batch."""
+        path = self.cfg.continual.base
+        if not is_model_file(path):
+            return None
+        frame = np.eye(4) if self.T_W_0 is None else self.T_W_0
+        try:
+            return file_base(path, spec, frame)
+        except ConfigError as exc:
+            raise RejectedMessageError("features", str(exc)) from None
 
     def checkpoint(self) -> bytes | None:
         """The learner state, test set and counters as safetensors bytes (None before a model)."""

@@ -279,3 +279,33 @@ def test_the_learner_stage_trains_in_its_child_process_as_the_core_does_here(bat
     assert stage.trainer.trained >= 3 and stage.trainer.failures == 0
     with pytest.raises(ChildProcessError):
         os.waitpid(pid, os.WNOHANG)  # ended and reaped
+
+
+def test_a_model_file_as_the_base_stands_under_the_first_model_and_a_foreign_one_stops(
+    batches, tmp_path
+):
+    """``continual.base`` a calibrated model file (``robocal calibrate --out``): the daemon's
+    first model stands on it, its frame against this cell's tracker; a file of another robot
+    stops the core at the start, naming it."""
+    from kinematics.calibration import calibrate
+    from kinematics.errors import ConfigError
+    from kinematics.gap.model_file import ModelFile, model_to_toml
+
+    ds, bs = batches
+    result = calibrate(load_description(ds.meta.robot), ds)
+    path = tmp_path / "calibrated.toml"
+    path.write_text(
+        model_to_toml(ModelFile(description=result.description, T_W_0=result.T_W_0, effects=()))
+    )
+    cfg = replace(CFG, continual=replace(CFG.continual, base=str(path)))
+    c = LearnerCore(load_description(ds.meta.robot), cfg, np.asarray(ds.meta.T_W_0))
+    c.add_batch(bs[0])
+    update = c.add_batch(bs[1])
+    base = c.learner.model.base
+    assert update is not None and base.kind == "file" and base.note == str(path)
+    X, Y = c.features(bs[2])
+    base_mm = np.linalg.norm((Y - base.error(c.learner.model.spec, X, c.robot))[:, :3], axis=1)
+    nominal_mm = np.linalg.norm(Y[:, :3], axis=1)
+    assert base_mm.mean() < 0.3 * nominal_mm.mean()  # 0.52 against 2.56 mm: this cell's frame
+    with pytest.raises(ConfigError, match="base file .* is for robot"):
+        LearnerCore(load_description("ur10"), cfg)
