@@ -61,6 +61,7 @@ from kinematics.errors import ConfigError, IdentifiabilityError
 from kinematics.gap.model_file import EffectEntry, ModelFile, load_model_file
 from kinematics.gap.workflow import run_gap
 from kinematics.identification.conditions import Observations, observations_from_dataset
+from kinematics.identification.fitting import jacobian
 from kinematics.model import RobotModel
 from kinematics.transforms import apply_error, invert, pose_error, xyz_quat_from_transform
 from learner.config import BASE_KINDS, DEFAULT_BASE, is_model_file
@@ -230,7 +231,7 @@ def gap_base(spec: FeatureSpec, X: np.ndarray, Y: np.ndarray) -> PhysicsBase:
     note += f"; held-out {before:.4f} -> {after:.4f} mm"
     model = result.model_file()
     base = _model_base("gap", model, model.T_W_0, note)
-    return refit_base(base, spec, X, Y) if base.left_out else base
+    return _refitted(base, spec, X, Y) if base.left_out else base
 
 
 def file_base(
@@ -257,28 +258,27 @@ def file_base(
             )
     base = _model_base("file", model, invert(frame) @ model.T_W_0, str(path))
     if base.left_out and X is not None and len(X):
-        base = refit_base(base, spec, X, Y)
+        base = _refitted(base, spec, X, Y)
     return base
 
 
 def refit_base(
-    base: PhysicsBase, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray, strict: bool = False
+    base: PhysicsBase,
+    spec: FeatureSpec,
+    X: np.ndarray,
+    Y: np.ndarray,
+    max_condition: float = np.inf,
 ) -> PhysicsBase:
     """``base`` fitted again to the points ``X, Y`` (labels against the nominal): its geometry
     and frames, and each effect's identified (non-zero) parameters from their values, under
     calibration's prior. A gap model file's effects were fitted beside backlash and tracker
     drift, which a base leaves out; without them they no longer fit. On UR10 A's points
     3000-4500, ``robocal gap``'s file as a base is 1.19 mm off on the test points, fitted again
-    0.39 mm (the geometric base 0.46 mm). Too few points to identify the geometry: ``base`` as
-    it is, its note says why (``strict``: IdentifiabilityError). ``condition`` is the
-    condition number of all the parameters fitted (unit-norm columns), the effects' too."""
+    0.39 mm (the geometric base 0.46 mm). IdentifiabilityError where the points cannot
+    identify the geometry, or identify all it fits (the effects too; unit-norm columns) only
+    with a condition number above ``max_condition``: then nothing is fitted."""
     desc, obs = base.description, base.observations(spec, X, Y)
-    try:
-        ident = identify(base.model, obs, CalibrationConfig())
-    except IdentifiabilityError as exc:
-        if strict:
-            raise
-        return replace(base, note=f"{base.note}; not fitted again: {exc}")
+    ident = identify(base.model, obs, CalibrationConfig())
     geometry = GeometricFrames(desc, ident.kept_index)
     effects = [
         (Restricted(effect, desc, tuple(map(int, np.flatnonzero(params)))), params)
@@ -286,19 +286,33 @@ def refit_base(
     ]
     blocks = [(geometry, np.zeros(len(ident.kept)))]
     blocks += [(effect, params[list(effect.free)]) for effect, params in effects]
+    names = tuple(n for block, _ in blocks for n in block.parameter_names(desc))
+    J = jacobian(base.model, obs, blocks, 1.0)
+    cond = identifiable(J, names, CalibrationConfig().rank_rtol).condition_number
+    if cond > max_condition:
+        raise IdentifiabilityError(
+            f"{len(X)} points identify it with condition number {cond:.3g} > {max_condition:g}"
+        )
     fit = fit_under_prior(base.model, obs, blocks, CalibrationConfig())
     calibrated, T_0_B = apply_calibration(desc, obs.T_W_0, geometry.full(fit.params[0]))
     entries = tuple(
         replace(entry, parameters=_named(effect.effect.parameter_names(desc), effect.full(p)))
         for entry, (effect, _), p in zip(base.effects, effects, fit.params[1:], strict=True)
     )
-    names = tuple(n for block, _ in blocks for n in block.parameter_names(desc))
-    cond = identifiable(fit.jac, names, CalibrationConfig().rank_rtol).condition_number
     note = f"{base.note}; the rest fitted again on {len(X)} points without them"
-    note += f", condition number {cond:.3g} (geometry {ident.condition_number:.3g})"
+    note += f", condition number {cond:.3g}"
     return replace(
         base, description=calibrated, T_0_B=T_0_B, effects=entries, note=note, condition=cond
     )
+
+
+def _refitted(base: PhysicsBase, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray) -> PhysicsBase:
+    """:func:`refit_base` on every training point, or ``base`` as it is where they cannot
+    identify it (the note says why)."""
+    try:
+        return refit_base(base, spec, X, Y)
+    except IdentifiabilityError as exc:
+        return replace(base, note=f"{base.note}; not fitted again: {exc}")
 
 
 def _named(names: tuple[str, ...], values: np.ndarray) -> dict[str, float]:

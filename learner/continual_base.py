@@ -100,7 +100,7 @@ def refined_base(
     The network goes on learning on it."""
     try:
         if status(base) == "refitted":
-            new = refit_base(base, spec, X, Y, strict=True)
+            new = refit_base(base, spec, X, Y, max_condition=AUTO_MAX_CONDITION)
         else:
             new = replace(identify_base("geometric", spec, X, Y), kind=base.kind)
     except IdentifiabilityError:
