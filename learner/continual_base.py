@@ -18,7 +18,7 @@ they double, where they identify every parameter it fits (condition number at mo
 :data:`~learner.base.AUTO_MAX_CONDITION`). On a random arm with tracker drift, a stream of
 2,250 points on the gap model file of the 1,500 before ended 0.093 mm off on the file as it
 was fitted again, 0.135 mm on it as filed; on UR10 Series A the file's gear correction is
-never identified that well from a stream's points (condition 1.6e3-4.7e4: fitted again on the
+never identified that well from a stream's points (condition 1.6e3-5.0e4: fitted again on the
 first 100, the base was 1.66 mm off against 0.46 mm as filed), so it stays as filed.
 
 >>> scheduled(20, "nominal"), scheduled(21, "nominal"), scheduled(20, "identified")
