@@ -74,6 +74,8 @@ IDENTIFY_POINTS = 200
 #: the nominal (UR10 Series A in time order, 50 points: condition 3.3e3, 1.7 mm off on the rest
 #: against 0.77 mm nominal; 9 mm before the calibration prior).
 AUTO_MAX_CONDITION = 100.0
+#: How a base's note says that it was fitted again (:func:`refit_base`).
+_REFIT_NOTE = "; the rest fitted again on"
 #: Effects a base evaluates from model features alone (others need signals a model lacks).
 _FEATURE_EFFECTS = ("geometric", "joint_compliance", "thermal_expansion", "gear_periodic")
 
@@ -299,8 +301,8 @@ def refit_base(
         replace(entry, parameters=_named(effect.effect.parameter_names(desc), effect.full(p)))
         for entry, (effect, _), p in zip(base.effects, effects, fit.params[1:], strict=True)
     )
-    note = f"{base.note}; the rest fitted again on {len(X)} points without them"
-    note += f", condition number {cond:.3g}"
+    note = base.note.split(_REFIT_NOTE)[0]  # the latest fit replaces an earlier one
+    note += f"{_REFIT_NOTE} {len(X)} points without them, condition number {cond:.3g}"
     return replace(
         base, description=calibrated, T_0_B=T_0_B, effects=entries, note=note, condition=cond
     )

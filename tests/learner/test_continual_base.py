@@ -125,6 +125,7 @@ def test_a_stream_on_a_gap_file_fits_what_it_keeps_again_as_its_points_double(dr
     assert "fitted again on 50 points" in notes[1]
     n = int(learner.base.note.rpartition("fitted again on ")[2].split()[0])
     assert n >= 200 and learner.model.base.note == learner.base.note
+    assert learner.base.note.count("fitted again") == 1  # the latest fit replaces the others
     geometric = identify_base("geometric", p.spec, p.X[train], p.Y[train])
     X_test, Y_test = p.X[p.test], p.Y[p.test]
     fitted_mm = _base_mm(learner.base, p.spec, X_test, Y_test)
