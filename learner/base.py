@@ -272,9 +272,9 @@ def refit_base(
     max_condition: float = np.inf,
 ) -> PhysicsBase:
     """``base`` fitted again to the points ``X, Y`` (labels against the nominal): its geometry
-    and frames, and each effect's identified (non-zero) parameters from their values, under
-    calibration's prior. A gap model file's effects were fitted beside backlash and tracker
-    drift, which a base leaves out; without them they no longer fit. On UR10 A's points
+    and frames, and each effect's estimated parameters (those the file gives a std) from their
+    values, under calibration's prior. A gap model file's effects were fitted beside backlash
+    and tracker drift, which a base leaves out; without them they no longer fit. On UR10 A's points
     3000-4500, ``robocal gap``'s file as a base is 1.19 mm off on the test points, fitted again
     0.39 mm (the geometric base 0.46 mm). IdentifiabilityError where the points cannot
     identify the geometry, or identify all it fits (the effects too; unit-norm columns) only
@@ -283,8 +283,8 @@ def refit_base(
     ident = identify(base.model, obs, CalibrationConfig())
     geometry = GeometricFrames(desc, ident.kept_index)
     effects = [
-        (Restricted(effect, desc, tuple(map(int, np.flatnonzero(params)))), params)
-        for effect, params in base.blocks()
+        (Restricted(effect, desc, _estimated(entry, effect.parameter_names(desc), params)), params)
+        for entry, (effect, params) in zip(base.effects, base.blocks(), strict=True)
     ]
     blocks = [(geometry, np.zeros(len(ident.kept)))]
     blocks += [(effect, params[list(effect.free)]) for effect, params in effects]
@@ -315,6 +315,14 @@ def _refitted(base: PhysicsBase, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray
         return refit_base(base, spec, X, Y)
     except IdentifiabilityError as exc:
         return replace(base, note=f"{base.note}; not fitted again: {exc}")
+
+
+def _estimated(entry: EffectEntry, names: tuple[str, ...], params: np.ndarray) -> tuple[int, ...]:
+    """Indices of the parameters a model file's effect estimated: those with a std, or (a file
+    that gives none) the non-zero ones."""
+    if entry.std:
+        return tuple(i for i, name in enumerate(names) if name in entry.std)
+    return tuple(map(int, np.flatnonzero(params)))
 
 
 def _named(names: tuple[str, ...], values: np.ndarray) -> dict[str, float]:

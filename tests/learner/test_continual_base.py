@@ -140,7 +140,8 @@ def test_a_file_base_is_fitted_again_only_where_the_points_identify_all_it_fits(
 ):
     """With a gear correction in the file (36 parameters), 100 points from a 1 rad band of
     joint 2 identify the fit poorly (condition number 6.9e3): the base stays as it is; 300
-    points over the whole range identify it (89) and it is fitted again."""
+    points over the whole range identify it (89) and it is fitted again, each parameter the
+    file gives a std, one estimated at exactly zero too."""
     path, later = drift_day
     p = prepare(later, test_fraction=0.2, seed=0)
     model = load_model_file(path)
@@ -148,8 +149,8 @@ def test_a_file_base_is_fitted_again_only_where_the_points_identify_all_it_fits(
     gear = EffectEntry(
         name="gear_periodic",
         options={"orders": [1, 2, 3]},
-        parameters=dict.fromkeys(names, 1e-4),
-        std={},
+        parameters=dict.fromkeys(names, 1e-4) | {names[0]: 0.0},  # estimated at 0: a std
+        std=dict.fromkeys(names, 1e-5),
         identified=False,
     )
     (tmp_path / "gear.toml").write_text(
@@ -161,3 +162,4 @@ def test_a_file_base_is_fitted_again_only_where_the_points_identify_all_it_fits(
     spread = refined_base(filed, p.spec, p.X[:300], p.Y[:300])
     assert spread is not None and spread.condition < AUTO_MAX_CONDITION
     assert [e.name for e in spread.effects] == ["gear_periodic"]
+    assert spread.effects[0].parameters[names[0]] != 0.0  # fitted: the file estimated it
