@@ -56,7 +56,7 @@ def daemon_config(
     settings: str = "",
     batch_size: int = 10,
     neurons: int = 8,
-    **continual: int,
+    **continual: int | str,
 ) -> Path:
     """Write a ``robocal run`` config to ``path``: cell "plant", one robot's window and learner
     on loopback ``port`` (checkpoints in ``state``; top-level ``settings`` TOML lines; an MCAP

@@ -12,6 +12,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 from mcap.reader import make_reader
 
@@ -238,3 +239,23 @@ def test_sigterm_while_the_learner_is_busy_ends_the_daemon_within_10_s(tmp_path)
     assert {"signal_received", "daemon_stopped"} <= events
     with (tmp_path / "plant.mcap").open("rb") as f:
         assert make_reader(f).get_summary() is not None
+
+
+def test_a_base_file_of_another_robot_stops_the_daemon_with_one_line_and_exit_2(tmp_path):
+    """``[learner.continual] base`` a model file: one of another robot (a UR10's on the Fanuc
+    cell) stops ``robocal run`` at the start, naming the mismatch."""
+    from kinematics.description import load_description
+    from kinematics.gap.model_file import ModelFile, model_to_toml
+
+    path = tmp_path / "ur10.toml"
+    path.write_text(
+        model_to_toml(ModelFile(description=load_description("ur10"), T_W_0=np.eye(4), effects=()))
+    )
+    cfg = daemon_config(
+        tmp_path / "robocal.toml", port=free_port(), T_W_0=np.eye(4), state=tmp_path, base=str(path)
+    )
+    proc = start_daemon(cfg)
+    assert proc.wait(60) == 2
+    err = [x for x in proc.stderr.read().strip().splitlines() if not x.startswith("{")]
+    assert len(err) == 1 and err[0].startswith("robocal: error: base file"), err
+    assert "is for robot 'ur10'" in err[0]
