@@ -6,7 +6,7 @@ weight (Adam and the gradient passes read every weight once per step, whatever t
 an epoch of a trial costs ``weights * rows * (1 + STEP_OVERHEAD / batch_size)`` and the epoch
 budget is ``min(max_epochs, work / that)``: it shrinks with the data size (a 3,004-point
 campaign gets a tenth of a 300-point one's epochs, the same number of gradient steps) and with
-the network (a 15 x 500 network at batch 4 gets a few epochs, the default 2 x 64 all of them).
+the network (a 15 x 500 network at batch 4 gets a few epochs, the default 3 x 64 all of them).
 The cap is arithmetic, not a clock: the same seed runs the same trials on any machine.
 
 >>> trial_epochs(n_weights=100_000, rows=270, batch_size=32, max_epochs=200, work=5e11)
