@@ -76,6 +76,25 @@ def test_checkpoint_restart_continues_exactly(batches, tmp_path):
     assert resumed.metrics(0.0, 0.0, 0.0) == straight.metrics(0.0, 0.0, 0.0)
 
 
+def test_a_checkpoint_of_another_network_shape_restores_as_it_was_trained(batches, tmp_path):
+    """A daemon upgraded to a new default shape (or given another ``[learner.model]``) goes on
+    from its checkpoint with the network the checkpoint holds, not the configured one."""
+    ds, bs = batches
+    first = core(ds)
+    for b in bs[:3]:
+        first.add_batch(b)
+    write_checkpoint(first, tmp_path / "ck.safetensors")
+    deeper = replace(CFG, model=replace(CFG.model, hidden_layers=2))
+    resumed = LearnerCore(load_description(ds.meta.robot), deeper, np.asarray(ds.meta.T_W_0))
+    read_checkpoint(resumed, tmp_path / "ck.safetensors")
+    assert resumed.learner.model.model_cfg.hidden_layers == 1
+    x = first.test_x
+    np.testing.assert_array_equal(
+        resumed.learner.model.predict(x).gamma, first.learner.model.predict(x).gamma
+    )
+    assert resumed.add_batch(bs[3]).metrics.model_version == first.learner.version + 1
+
+
 def test_checkpoint_files_are_written_by_the_one_writer_and_read_back_named(batches, tmp_path):
     """Nothing before a model; the file gets the umask's mode (the shared atomic writer, not
     mkstemp's 0600) and no temporary file; a file that is not a checkpoint is named."""
