@@ -98,7 +98,8 @@ def main() -> None:
 
         def step(fwd=fwd, opt=opt):
             opt.zero_grad()
-            evidential_loss(yb, *fwd(xb), 0.01).backward()
+            train = model.train_cfg
+            evidential_loss(yb, *fwd(xb), train.lam, train.nll_variance_power).backward()
             opt.step()
 
         out[f"{name}_train_step_bs64_ms"] = 1e3 * np.median(timed(step, 500))

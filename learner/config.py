@@ -125,8 +125,11 @@ class ModelConfig:
 class TrainConfig:
     """Batch training: Adam, weight decay, lr × 0.75 after ``patience_lr`` epochs without
     validation improvement, early stopping after ``early_stop_patience``, best weights kept.
-    ``lam`` weighs the evidence regulariser; ``val_fraction`` is split off when no validation
-    set is given (0 trains all ``max_epochs`` on everything and keeps the last weights)."""
+    ``lam`` weighs the evidence regulariser; ``nll_variance_power`` weighs each point's NLL by
+    its predicted variance to that power (β-NLL, :mod:`learner.evidential`; 0: the NLL as
+    DESIGN.md writes it). ``val_fraction`` is split
+    off when no validation set is given (0 trains all ``max_epochs`` on everything and keeps
+    the last weights)."""
 
     batch_size: int = 64
     lr: float = 3e-3
@@ -135,6 +138,7 @@ class TrainConfig:
     patience_lr: int = 30
     early_stop_patience: int = 80
     lam: float = 0.01
+    nll_variance_power: float = 0.5
     val_fraction: float = 0.1
     seed: int = 0
 
@@ -150,6 +154,10 @@ class TrainConfig:
         )
         _check_counts(self, "train", ("max_epochs", "patience_lr", "early_stop_patience"))
         _check(self.lam >= 0.0, f"train.lam must be >= 0, got {self.lam}")
+        _check(
+            0.0 <= self.nll_variance_power <= 1.0,
+            f"train.nll_variance_power must be in [0, 1], got {self.nll_variance_power}",
+        )
         _check(
             0.0 <= self.val_fraction < 1.0,
             f"train.val_fraction must be in [0, 1), got {self.val_fraction}",

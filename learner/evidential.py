@@ -3,7 +3,11 @@
 A network outputs a Normal-Inverse-Gamma ``(gamma, nu, alpha, beta)`` per label component
 (``nu, beta > 0``, ``alpha > 1``). Its marginal predictive is a Student-t with ``2 alpha``
 degrees of freedom, location ``gamma`` and scale² ``beta (1 + nu) / (nu alpha)``; the loss is
-that distribution's negative log density plus an evidence regulariser.
+that distribution's negative log density plus an evidence regulariser. In training, each
+point's negative log density can be weighed by its predicted variance to a power ``p``, held
+constant in the gradient (β-NLL, Seitzer et al. 2022): at ``p = 0`` a network may leave points
+it fits badly to a large variance and stop fitting them; at ``p = 1`` its mean learns as under
+the squared error.
 
 >>> import numpy as np
 >>> ev = Evidential(gamma=np.zeros((1, 6)), nu=np.ones((1, 6)), alpha=np.full((1, 6), 2.0),
@@ -49,6 +53,23 @@ def nig_regularizer(
     return torch.abs(y - gamma) * (2.0 * nu + alpha)
 
 
+def evidential_elements(
+    y: torch.Tensor,
+    gamma: torch.Tensor,
+    nu: torch.Tensor,
+    alpha: torch.Tensor,
+    beta: torch.Tensor,
+    lam: float,
+    power: float = 0.0,
+) -> torch.Tensor:
+    """Elementwise ``w L_NLL + lam L_R``, ``w`` the predictive variance
+    ``beta (1 + nu) / (nu (alpha - 1))`` to the ``power``, held constant in the gradient."""
+    nll = nig_nll(y, gamma, nu, alpha, beta)
+    if power:
+        nll = nll * (beta * (1.0 + nu) / (nu * (alpha - 1.0))).detach() ** power
+    return nll + lam * nig_regularizer(y, gamma, nu, alpha)
+
+
 def evidential_loss(
     y: torch.Tensor,
     gamma: torch.Tensor,
@@ -56,9 +77,10 @@ def evidential_loss(
     alpha: torch.Tensor,
     beta: torch.Tensor,
     lam: float,
+    power: float = 0.0,
 ) -> torch.Tensor:
-    """The mean of ``L_NLL + lam * L_R`` over all elements (a scalar)."""
-    return (nig_nll(y, gamma, nu, alpha, beta) + lam * nig_regularizer(y, gamma, nu, alpha)).mean()
+    """The mean of :func:`evidential_elements` over all elements (a scalar)."""
+    return evidential_elements(y, gamma, nu, alpha, beta, lam, power).mean()
 
 
 def combine_members(

@@ -30,7 +30,7 @@ from torch.nn import functional as F  # noqa: N812
 from learner.base import PhysicsBase
 from learner.config import ModelConfig, TrainConfig
 from learner.ensemble import EvidentialEnsemble
-from learner.evidential import nig_nll, nig_regularizer
+from learner.evidential import evidential_elements
 from learner.features import FeatureSpec
 from learner.model import N_LABELS, ErrorModel
 
@@ -129,8 +129,8 @@ def train_folds(
             y = Yt[rows, fold_index].transpose(1, 2).unsqueeze(1).expand(K, M, N_LABELS, b)
             y = y.reshape(K * per_fold, b)
             gamma, nu, alpha, beta = _nig(_forward(net, x, act, model_cfg.dropout, True))
-            elem = nig_nll(y, gamma, nu, alpha, beta) + train_cfg.lam * nig_regularizer(
-                y, gamma, nu, alpha
+            elem = evidential_elements(
+                y, gamma, nu, alpha, beta, train_cfg.lam, train_cfg.nll_variance_power
             )
             counts = w.sum(dim=1).clamp(min=1.0) * per_fold
             per_head = (elem * w.repeat_interleave(per_fold, dim=0)).sum(dim=1)

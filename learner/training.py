@@ -87,7 +87,9 @@ def train_loop(
         for i in range(0, n, bs):
             idx = perm[i : i + bs]
             gamma, nu, alpha, beta = net(Xs[idx])
-            loss = evidential_loss(Y_heads[idx], gamma, nu, alpha, beta, cfg.lam)
+            loss = evidential_loss(
+                Y_heads[idx], gamma, nu, alpha, beta, cfg.lam, cfg.nll_variance_power
+            )
             opt.zero_grad(set_to_none=True)
             if not torch.isfinite(loss):
                 skipped += 1

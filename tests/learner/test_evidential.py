@@ -4,7 +4,14 @@ import torch
 from scipy import stats
 
 from kinematics.errors import ConfigError
-from learner.evidential import Evidential, evidential_loss, nig_nll, nig_regularizer
+from learner.config import TrainConfig
+from learner.evidential import (
+    Evidential,
+    evidential_elements,
+    evidential_loss,
+    nig_nll,
+    nig_regularizer,
+)
 
 
 def _params(rng, n=50):
@@ -41,17 +48,47 @@ def test_regularizer_and_loss_follow_design():
     assert float(loss) == pytest.approx(want)
 
 
+def test_variance_power_weighs_each_nll_by_its_variance_held_constant():
+    y, gamma, nu, alpha, beta = (
+        torch.as_tensor(a, dtype=torch.float64) for a in _params(np.random.default_rng(4))
+    )
+    variance = beta * (1 + nu) / (nu * (alpha - 1))
+    got = evidential_elements(y, gamma, nu, alpha, beta, lam=0.1, power=0.5)
+    want = variance**0.5 * nig_nll(y, gamma, nu, alpha, beta) + 0.1 * nig_regularizer(
+        y, gamma, nu, alpha
+    )
+    np.testing.assert_allclose(got.numpy(), want.numpy(), rtol=1e-12)
+    assert float(evidential_loss(y, gamma, nu, alpha, beta, 0.1, 0.5)) == pytest.approx(
+        float(got.mean())
+    )
+    grads = []
+    for power in (0.0, 0.5):
+        g, b = gamma.clone().requires_grad_(True), beta.clone().requires_grad_(True)
+        evidential_elements(y, g, nu, alpha, b, lam=0.0, power=power).sum().backward()
+        grads.append((g.grad, b.grad))
+    # The weight is a constant of the gradient: each gradient is the plain NLL's, scaled.
+    for plain, weighed in zip(*grads, strict=True):
+        np.testing.assert_allclose(weighed.numpy(), (variance**0.5 * plain).numpy(), rtol=1e-10)
+
+
+@pytest.mark.parametrize("power", [0.0, 0.5, 1.0])
 @pytest.mark.parametrize("scale", [1e-6, 1.0, 1e6])
-def test_gradients_finite_at_extreme_inputs(scale):
+def test_gradients_finite_at_extreme_inputs(scale, power):
     torch.manual_seed(0)
     raw = (torch.randn(4, 20) * scale).requires_grad_(True)
-    gamma = raw[0]
+    gamma = raw[0]  # the network's floors (learner.ensemble)
     nu = torch.nn.functional.softplus(raw[1]) + 1e-6
-    alpha = torch.nn.functional.softplus(raw[2]) + 1.0
+    alpha = torch.nn.functional.softplus(raw[2]) + (1.0 + 1e-6)
     beta = torch.nn.functional.softplus(raw[3]) + 1e-6
     y = torch.randn(20) * scale
-    evidential_loss(y, gamma, nu, alpha, beta, lam=0.01).backward()
+    evidential_loss(y, gamma, nu, alpha, beta, lam=0.01, power=power).backward()
     assert torch.isfinite(raw.grad).all()
+
+
+@pytest.mark.parametrize("power", [-0.1, 1.5])
+def test_variance_power_outside_zero_to_one_is_refused(power):
+    with pytest.raises(ConfigError, match="train.nll_variance_power must be in"):
+        TrainConfig(nll_variance_power=power)
 
 
 def test_interval_is_student_t_quantile():

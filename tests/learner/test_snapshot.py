@@ -118,3 +118,19 @@ def test_version_1_snapshots_load_as_minmax(trained):
     back = snapshot_from_bytes(old)
     assert back.model_cfg.encoding == "minmax" and back.model_cfg.members == 1
     np.testing.assert_array_equal(back.predict(X).gamma, m.predict(X).gamma)
+
+
+def test_a_snapshot_from_before_the_variance_power_goes_on_with_the_plain_nll(trained):
+    import json
+
+    from safetensors.torch import load as st_load
+    from safetensors.torch import save as st_save
+
+    m, X = trained
+    data = snapshot_to_bytes(m)
+    assert snapshot_meta(data)["train_config"]["nll_variance_power"] == 0.5
+    meta = snapshot_meta(data)
+    del meta["train_config"]["nll_variance_power"]
+    back = snapshot_from_bytes(st_save(st_load(data), metadata={"robocal": json.dumps(meta)}))
+    assert back.train_cfg.nll_variance_power == 0.0  # as it was trained
+    np.testing.assert_array_equal(back.predict(X).gamma, m.predict(X).gamma)
