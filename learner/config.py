@@ -138,7 +138,7 @@ class TrainConfig:
     patience_lr: int = 30
     early_stop_patience: int = 80
     lam: float = 0.01
-    nll_variance_power: float = 0.5
+    nll_variance_power: float = 0.25
     val_fraction: float = 0.1
     seed: int = 0
 
