@@ -20,7 +20,7 @@ from kinematics.description import load_description
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from learner.continual import ContinualLearner
 from learner.encoding import n_inputs
-from learner.evidential import evidential_loss
+from learner.evidential import evidential_elements
 from learner.features import feature_spec
 from learner.model import ErrorModel
 from learner.workflow import prepare
@@ -99,7 +99,7 @@ def main() -> None:
         def step(fwd=fwd, opt=opt):
             opt.zero_grad()
             train = model.train_cfg
-            evidential_loss(yb, *fwd(xb), train.lam, train.nll_variance_power).backward()
+            evidential_elements(yb, *fwd(xb), train.lam, train.nll_variance_power).mean().backward()
             opt.step()
 
         out[f"{name}_train_step_bs64_ms"] = 1e3 * np.median(timed(step, 500))

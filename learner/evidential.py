@@ -63,24 +63,12 @@ def evidential_elements(
     power: float = 0.0,
 ) -> torch.Tensor:
     """Elementwise ``w L_NLL + lam L_R``, ``w`` the predictive variance
-    ``beta (1 + nu) / (nu (alpha - 1))`` to the ``power``, held constant in the gradient."""
+    ``beta (1 + nu) / (nu (alpha - 1))`` to the ``power``, held constant in the gradient; the
+    training loss is their mean."""
     nll = nig_nll(y, gamma, nu, alpha, beta)
     if power:
         nll = nll * (beta * (1.0 + nu) / (nu * (alpha - 1.0))).detach() ** power
     return nll + lam * nig_regularizer(y, gamma, nu, alpha)
-
-
-def evidential_loss(
-    y: torch.Tensor,
-    gamma: torch.Tensor,
-    nu: torch.Tensor,
-    alpha: torch.Tensor,
-    beta: torch.Tensor,
-    lam: float,
-    power: float = 0.0,
-) -> torch.Tensor:
-    """The mean of :func:`evidential_elements` over all elements (a scalar)."""
-    return evidential_elements(y, gamma, nu, alpha, beta, lam, power).mean()
 
 
 def combine_members(

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from learner.config import ModelConfig, TrainConfig
-from learner.evidential import evidential_loss
+from learner.evidential import evidential_elements
 
 #: Gradients are clipped to this total norm (scaled units); a non-finite norm skips the step.
 _MAX_GRAD_NORM = 100.0
@@ -87,9 +87,9 @@ def train_loop(
         for i in range(0, n, bs):
             idx = perm[i : i + bs]
             gamma, nu, alpha, beta = net(Xs[idx])
-            loss = evidential_loss(
+            loss = evidential_elements(
                 Y_heads[idx], gamma, nu, alpha, beta, cfg.lam, cfg.nll_variance_power
-            )
+            ).mean()
             opt.zero_grad(set_to_none=True)
             if not torch.isfinite(loss):
                 skipped += 1
