@@ -127,9 +127,8 @@ class TrainConfig:
     validation improvement, early stopping after ``early_stop_patience``, best weights kept.
     ``lam`` weighs the evidence regulariser; ``nll_variance_power`` weighs each point's NLL by
     its predicted variance to that power (β-NLL, :mod:`learner.evidential`; 0: the NLL as
-    DESIGN.md writes it). ``val_fraction`` is split
-    off when no validation set is given (0 trains all ``max_epochs`` on everything and keeps
-    the last weights)."""
+    DESIGN.md writes it). ``val_fraction`` is split off when no validation set is given (0
+    trains all ``max_epochs`` on everything and keeps the last weights)."""
 
     batch_size: int = 64
     lr: float = 3e-3

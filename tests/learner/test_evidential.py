@@ -5,12 +5,7 @@ from scipy import stats
 
 from kinematics.errors import ConfigError
 from learner.config import TrainConfig
-from learner.evidential import (
-    Evidential,
-    evidential_elements,
-    nig_nll,
-    nig_regularizer,
-)
+from learner.evidential import Evidential, evidential_elements, nig_nll, nig_regularizer
 
 
 def _params(rng, n=50):
