@@ -96,9 +96,8 @@ def main() -> None:
     ):
         opt = torch.optim.Adam(list(params), lr=1e-3, foreach=True)
 
-        def step(fwd=fwd, opt=opt):
+        def step(fwd=fwd, opt=opt, train=model.train_cfg):
             opt.zero_grad()
-            train = model.train_cfg
             evidential_elements(yb, *fwd(xb), train.lam, train.nll_variance_power).mean().backward()
             opt.step()
 
