@@ -49,7 +49,7 @@ _READABLE_VERSIONS = (1, 2)
 #: What version 1 snapshots, written before these fields existed, were.
 _V1_MODEL = {"encoding": "minmax", "members": 1}
 #: What a snapshot written before ``nll_variance_power`` was trained with: the plain NLL.
-_V1_TRAIN = {"nll_variance_power": 0.0}
+_TRAIN_BEFORE_POWER = {"nll_variance_power": 0.0}
 _META_KEY = "robocal"
 _SCALERS = ("feature_low", "feature_high", "label_mean", "label_std", "interval_scale")
 
@@ -145,7 +145,7 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
         model = ErrorModel(
             spec=spec,
             model_cfg=ModelConfig(**(_V1_MODEL | meta["model_config"])),
-            train_cfg=TrainConfig(**(_V1_TRAIN | meta["train_config"])),
+            train_cfg=TrainConfig(**(_TRAIN_BEFORE_POWER | meta["train_config"])),
             seed=int(meta["seed"]),
             robot=str(meta["robot"]),
             label_mean=tensors["label_mean"].numpy() if meta["fitted"] else None,
