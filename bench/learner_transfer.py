@@ -1,21 +1,22 @@
 """A model carried into a new day: trained on one UR10 series (physics base + residual, its
-training split), then continued on the other series as ``robocal continual --from`` does. For
-k = 0, 10, 25, 50, 100 of the new series' first points in recorded order (as a new day starts:
+training split), then continued on the other series as ``robocal continual --from`` does.
+For k = 0, 10, 25, 50, 100 of the new series' first points in recorded order (as a new day starts:
 Series A's first 100 span 40-130 deg per joint, B's nearly its whole range),
 ``ContinualLearner.carry``: the base's frames (``T_W_0``, tool) re-identified from those k
 points (MAP, the network's residual taken off) and the carried network's gain fitted on them;
-one update on them, and the new series' held-out test error (10 %, seed 0, drawn over the
-whole series) with 90 % coverage and how much wider the epistemic spread is there than on the
-source's own test points, and the share of test points the compensation service would flag
-as untrusted (epistemic std above its limit, or a joint past the angles the model was trained
-on, ``learner.envelope``: both shares, and either) with the 90 % coverage on the trusted
-ones. Both directions, ``--seeds`` seeds. ``--cache DIR`` keeps the trained source models
-(by series, base, seed and epochs) for the next run. ``--base-a`` / ``--base-b`` are the
+one update on them, and the new series' held-out test error (10 %, seed 0, drawn over the whole
+series) with 90 % coverage and how much wider the epistemic spread is there than on the source's
+own test points, and the share of test points the compensation service would flag as untrusted
+(epistemic std above its limit, or a joint or thermometer past the angles or temperatures the
+model was trained on, ``learner.envelope``: both shares, and either) with the 90 % coverage on
+the trusted ones. Both directions, ``--seeds`` seeds. ``--cache DIR`` keeps the trained source
+models (by series, base, seed and epochs) for the next run. ``--base-a`` / ``--base-b`` are the
 source models' bases (a kind or a model file, e.g. ``robocal gap``'s), ``--frame-prior-mm`` /
 ``--moved-frame-prior-mm`` the carry's frame priors (equal: no choice; ``ContinualConfig``);
-``frames_moved`` is the share of seeds whose carry took the frames as moved. ``--order
-spread`` draws the k points at random from the new series instead (seeded): a day that starts
-with a reference program over the workspace.
+``frames_moved`` is the share of seeds whose carry took the frames as moved. ``--order spread``
+draws the k points at random from the new series instead (seeded): a day that starts with a
+reference program over the workspace.
+
 
     .venv/bin/python bench/learner_transfer.py --a /tmp/a.parquet --b /tmp/b.parquet --seeds 0 1 2
 """

@@ -65,7 +65,7 @@ from kinematics.identification.fitting import jacobian
 from kinematics.model import RobotModel
 from kinematics.transforms import apply_error, invert, pose_error, xyz_quat_from_transform
 from learner.config import BASE_KINDS, DEFAULT_BASE, is_model_file
-from learner.features import FeatureSpec
+from learner.features import FeatureSpec, temperature_readings
 
 #: Points ``auto`` identifies the geometric base from (the first of the stream).
 IDENTIFY_POINTS = 200
@@ -182,7 +182,7 @@ def measured_dataset(spec: FeatureSpec, X: np.ndarray, Y: np.ndarray) -> Dataset
     xyz, quat = xyz_quat_from_transform(T)
     columns = {"t": np.arange(len(X), dtype=float)}
     columns |= {f"q{i}": X[:, i - 1] for i in range(1, desc.n_joints + 1)}
-    columns |= {n: X[:, spec.names.index(n)] for n in temperature_columns(spec.names)}
+    columns |= temperature_readings(spec, X)
     columns |= dict(zip(("x", "y", "z"), xyz.T, strict=True))
     columns |= dict(zip(("qx", "qy", "qz", "qw"), quat.T, strict=True))
     meta = DatasetMeta(robot=desc.name, frame="base", T_6_S=desc.tool.tolist())

@@ -218,6 +218,12 @@ def labels(model: RobotModel, q: np.ndarray, T_0_S: np.ndarray) -> np.ndarray:
     return pose_error(T_0_S, model.fk(q))
 
 
+def temperature_readings(spec: FeatureSpec, X: np.ndarray) -> dict[str, np.ndarray]:
+    """The thermometer columns of raw features ``X`` ``(N, F)`` by feature name (°C)."""
+    X = np.asarray(X, dtype=float)
+    return {name: X[:, spec.names.index(name)] for name in temperature_columns(spec.names)}
+
+
 def dataset_features(ds: Dataset, spec: FeatureSpec) -> np.ndarray:
     """Raw SI features ``(N, F)`` of ``ds`` in ``spec.names`` order."""
     t = ds.table

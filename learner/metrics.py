@@ -13,7 +13,8 @@ import numpy as np
 
 from kinematics.error_stats import ErrorStats
 from kinematics.transforms import ARCMIN_PER_RAD
-from learner.envelope import MARGIN_DEG, outside
+from learner.envelope import MARGIN_DEG, MARGIN_K, outside
+from learner.features import temperature_readings
 from learner.model import ErrorModel
 
 LEVELS = (0.68, 0.90, 0.95)
@@ -84,19 +85,27 @@ def accuracy_report(
     )
 
 
-def past_envelope(model: ErrorModel, X: np.ndarray, margin_deg: float = MARGIN_DEG) -> np.ndarray:
-    """Per row of raw features ``X``: does a joint lie past the angles ``model`` was trained on
-    (:mod:`learner.envelope`, what compensation marks ``envelope``)? All False without one."""
+def past_envelope(
+    model: ErrorModel,
+    X: np.ndarray,
+    margin_deg: float = MARGIN_DEG,
+    margin_k: float = MARGIN_K,
+) -> np.ndarray:
+    """Per row of raw features ``X``: does a joint or a thermometer lie past what ``model`` was
+    trained on (:mod:`learner.envelope`, what compensation marks ``envelope``)? All False
+    without an envelope."""
+    X = np.asarray(X, dtype=float)
     if model.envelope is None:
         return np.zeros(len(X), dtype=bool)
-    return outside(model.envelope, np.asarray(X)[:, : model.spec.n_joints], margin_deg)
+    temps = temperature_readings(model.spec, X)
+    return outside(model.envelope, X[:, : model.spec.n_joints], temps, margin_deg, margin_k)
 
 
 def envelope_report(
     model: ErrorModel, X: np.ndarray, Y: np.ndarray, margin_deg: float = MARGIN_DEG
 ) -> dict:
-    """How much of ``X, Y`` lies past the joint angles ``model`` was trained on (a share, a
-    count) and the accuracy of the rest (None when nothing is left)."""
+    """How much of ``X, Y`` lies past the joint angles or temperatures ``model`` was trained on
+    (a share, a count) and the accuracy of the rest (None when nothing is left)."""
     out = past_envelope(model, X, margin_deg)
     inside = accuracy_report(model, X[~out], Y[~out]).to_dict() if (~out).any() else None
     return {"outside_share": float(out.mean()), "n_outside": int(out.sum()), "inside": inside}

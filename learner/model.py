@@ -31,9 +31,9 @@ from learner.base import PhysicsBase
 from learner.config import ModelConfig, TrainConfig
 from learner.encoding import input_encoder, n_inputs
 from learner.ensemble import EvidentialEnsemble
-from learner.envelope import widen
+from learner.envelope import Envelope, widen
 from learner.evidential import Evidential, combine_members
-from learner.features import FeatureSpec
+from learner.features import FeatureSpec, temperature_readings
 from learner.training import Trainer, TrainReport, train_loop
 
 N_LABELS = 6
@@ -78,7 +78,7 @@ class ErrorModel:
         interval_scale: np.ndarray | None = None,
         base: PhysicsBase | None = None,
         residual_gain: float = 1.0,
-        envelope: np.ndarray | None = None,
+        envelope: Envelope | None = None,
     ) -> None:
         self.spec = spec
         self.base = base
@@ -92,7 +92,7 @@ class ErrorModel:
             np.ones(N_LABELS) if interval_scale is None else np.asarray(interval_scale, dtype=float)
         )
         self.residual_gain = float(residual_gain)
-        self.envelope = envelope  # the joint angles trained on (learner.envelope)
+        self.envelope = envelope  # the joint angles and temperatures trained on
         self.net = EvidentialEnsemble(
             n_inputs=n_inputs(spec, model_cfg.encoding),
             hidden_layers=model_cfg.hidden_layers,
@@ -278,7 +278,7 @@ class ErrorModel:
         trainer: Trainer | None = None,
     ) -> TrainReport:
         """Train (warm-started from the current weights) with Adam and the evidential loss;
-        the training points' joint angles widen :attr:`envelope`.
+        the training points' joint angles and temperatures widen :attr:`envelope`.
 
         Without ``X_val`` a ``val_fraction`` of ``X`` is held out for the lr schedule and early
         stopping; the best weights by validation MSE are kept and the interval scale is
@@ -303,7 +303,9 @@ class ErrorModel:
             if len(held):
                 X, Y, X_val, Y_val = X[rest], Y[rest], X[held], Y[held]
         R = Y - self.base_error(X)  # the network learns what the base leaves
-        self.envelope = widen(self.envelope, X[:, : self.spec.n_joints])
+        self.envelope = widen(
+            self.envelope, X[:, : self.spec.n_joints], temperature_readings(self.spec, X)
+        )
         self._ensure_label_scaler(R)
         Xs, Ys = self.scale_x(X), self.scale_y(R)
         val = None

@@ -6,8 +6,9 @@ configs, seed and training metrics; the tensors hold the network weights, the fi
 the sensor transform ``T_6_S`` (float64, so predictions after a reload are bit-identical).
 The physics base travels too (kind, note, description TOML and effects in the JSON; its frame
 ``T_0_B`` and tool as float64 tensors), so a reloaded model predicts what it predicted; so do
-the joint angles it was trained on (``joint_envelope``, :mod:`learner.envelope`; absent in
-snapshots written before it existed, which compensation then does not check). Version
+the joint angles and temperatures it was trained on (``joint_envelope``,
+``temperature_envelope``, :mod:`learner.envelope`; absent in snapshots written before they
+existed, which compensation then does not check). Version
 1 snapshots (before input encodings and members existed) load as ``encoding = "minmax"``, one
 member; snapshots without a base load on the nominal.
 
@@ -33,13 +34,13 @@ from safetensors import SafetensorError
 from safetensors.torch import load as st_load
 from safetensors.torch import save as st_save
 
-from kinematics.dataset import atomic_write
+from kinematics.dataset import atomic_write, temperature_columns
 from kinematics.description import description_from_dict, description_to_toml
 from kinematics.errors import RobocalError, SnapshotError
 from kinematics.gap.model_file import EffectEntry
 from learner.base import PhysicsBase
 from learner.config import ModelConfig, TrainConfig
-from learner.envelope import N_BINS
+from learner.envelope import N_BINS, Envelope
 from learner.features import FeatureSpec
 from learner.model import ErrorModel
 
@@ -68,7 +69,7 @@ def snapshot_to_bytes(model: ErrorModel, extra_meta: dict | None = None) -> byte
     if desc is not None:
         tensors["sensor_tool"] = torch.as_tensor(desc.tool)
     if model.envelope is not None:
-        tensors["joint_envelope"] = torch.as_tensor(np.asarray(model.envelope, dtype=np.uint8))
+        tensors |= _envelope_tensors(model.envelope, model.spec)
     base = model.base
     if base is not None:
         tensors["base_T_0_B"] = torch.as_tensor(np.array(base.T_0_B, dtype=np.float64))
@@ -166,16 +167,40 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
     return model
 
 
-def _envelope(tensors: dict, spec: FeatureSpec) -> np.ndarray | None:
-    """The ``joint_envelope`` tensor as bools ``(n_joints, 72)``; None when absent (snapshots
-    written before it existed). Another shape is a SnapshotError: compensation indexes it."""
+def _envelope_tensors(envelope: Envelope, spec: FeatureSpec) -> dict[str, torch.Tensor]:
+    """``joint_envelope`` (uint8 ``(n_joints, 72)``) and ``temperature_envelope`` (float64
+    ``(n_thermometers, 2)``, lowest and highest °C, in the spec's order; absent without
+    thermometers)."""
+    tensors = {"joint_envelope": torch.as_tensor(np.asarray(envelope.joints, dtype=np.uint8))}
+    names = temperature_columns(spec.names)
+    if names and all(n in envelope.temperatures for n in names):
+        ranges = [envelope.temperatures[n] for n in names]
+        tensors["temperature_envelope"] = torch.as_tensor(np.array(ranges, dtype=np.float64))
+    return tensors
+
+
+def _envelope(tensors: dict, spec: FeatureSpec) -> Envelope | None:
+    """The envelope of the ``joint_envelope`` and ``temperature_envelope`` tensors; None when
+    the first is absent, no temperatures when the second is (snapshots written before they
+    existed). Another shape is a SnapshotError: compensation indexes them."""
     if "joint_envelope" not in tensors:
         return None
-    envelope = tensors["joint_envelope"].numpy()
+    joints = tensors["joint_envelope"].numpy()
     shape = (spec.n_joints, N_BINS)
-    if envelope.shape != shape:
-        raise SnapshotError(f"joint_envelope has shape {envelope.shape}, expected {shape}")
-    return envelope.astype(bool)
+    if joints.shape != shape:
+        raise SnapshotError(f"joint_envelope has shape {joints.shape}, expected {shape}")
+    names = temperature_columns(spec.names)
+    if "temperature_envelope" not in tensors:
+        return Envelope(joints.astype(bool))
+    ranges = tensors["temperature_envelope"].numpy()
+    if ranges.shape != (len(names), 2):
+        raise SnapshotError(
+            f"temperature_envelope has shape {ranges.shape}, expected {(len(names), 2)}"
+        )
+    return Envelope(
+        joints.astype(bool),
+        {n: (float(lo), float(hi)) for n, (lo, hi) in zip(names, ranges, strict=True)},
+    )
 
 
 def _base_meta(base: PhysicsBase) -> dict:

@@ -9,7 +9,8 @@ small near singular poses.
 An answer is marked untrusted when the epistemic standard deviation of a position component
 exceeds ``epistemic_limit_mm`` (the model has not seen data like this) and, in
 :mod:`stream.compensation_guard`, when a joint lies more than ``envelope_margin_deg`` outside
-the angles the model was trained on (:mod:`learner.envelope`).
+the angles the model was trained on or a thermometer more than ``envelope_margin_k`` outside
+the temperatures (:mod:`learner.envelope`).
 
 Near a singular pose the damped steps cannot reach the target within ``max_iterations``: a
 millimetre there takes a large joint motion. What happens then is the configured ``policy``
@@ -36,7 +37,7 @@ import numpy as np
 from kinematics.errors import ConfigError, DatasetError
 from kinematics.model import RobotModel
 from kinematics.transforms import apply_error, pose_error, transform_from_xyz_quat
-from learner.envelope import MARGIN_DEG
+from learner.envelope import MARGIN_DEG, MARGIN_K
 from learner.features import features
 from learner.model import ErrorModel
 from wire import JOINT_LIMIT_RAD, RejectedMessageError, check_finite
@@ -47,14 +48,15 @@ POLICIES = ("refuse", "flag", "best_effort")
 
 @dataclass(frozen=True, kw_only=True)
 class CompensationConfig:
-    """Trust limits (epistemic std, mm; how far past the trained joint angles, deg), interval
-    level, the corrected-command iteration (limits, the initial
+    """Trust limits (epistemic std, mm; how far past the trained joint angles, deg, and
+    temperatures, K), interval level, the corrected-command iteration (limits, the initial
     damping ``d``, the largest joint step per iteration, rad) and the policy for commands it
     cannot land: :data:`POLICIES`, with best effort's largest joint motion from the command
     (rad, any joint), its iterations and its step (rad)."""
 
     epistemic_limit_mm: float = 0.5
     envelope_margin_deg: float = MARGIN_DEG
+    envelope_margin_k: float = MARGIN_K
     level: float = 0.9
     max_iterations: int = 50
     tolerance_m: float = 1e-7
@@ -90,10 +92,10 @@ class CompensationConfig:
             raise ConfigError(
                 f"compensation.epistemic_limit_mm must be > 0, got {self.epistemic_limit_mm}"
             )
-        if not (math.isfinite(self.envelope_margin_deg) and self.envelope_margin_deg >= 0):
-            raise ConfigError(
-                f"compensation.envelope_margin_deg must be >= 0, got {self.envelope_margin_deg}"
-            )
+        for name in ("envelope_margin_deg", "envelope_margin_k"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ConfigError(f"compensation.{name} must be >= 0, got {value}")
         if not 0 < self.level < 1:
             raise ConfigError(f"compensation.level must be in (0, 1), got {self.level}")
         if not (self.damping >= 0 and self.max_step_rad > 0):

@@ -7,8 +7,9 @@ description's limits), ``quaternion`` (a target quaternion that is not a unit qu
 failed or gave non-finite numbers), ``residual`` (the corrected command misses the target by
 more than ``max_residual_m``), ``corrected_limits`` (the corrected command leaves the limits),
 ``epistemic`` (the model has not seen data like this), ``envelope`` (a joint more than
-``envelope_margin_deg`` past the angles the model was trained on, :mod:`learner.envelope`: its
-base and network extrapolate there and its intervals do not know it). A refusal before solving
+``envelope_margin_deg`` past the angles the model was trained on, or a thermometer more than
+``envelope_margin_k`` past the temperatures, :mod:`learner.envelope`: its base and network
+extrapolate there and its intervals do not know it). A refusal before solving
 answers with the uncorrected command and the error predicted there (zeros when even that fails).
 
 A command the solver cannot land within ``max_residual_m`` (near a singular pose) is answered
@@ -32,6 +33,7 @@ import numpy as np
 from kinematics.errors import ConfigError, RobocalError
 from kinematics.model import RobotModel
 from learner.envelope import why_outside
+from learner.features import temperature_readings
 from learner.model import ErrorModel
 from stream.compensation import (
     CompensationConfig,
@@ -125,10 +127,15 @@ def guarded_compensate(
         return replace(reply, trusted=False, reason=f"corrected_limits: {why}")
     if not reply.trusted:
         return replace(reply, reason=f"epistemic: {reply.reason}")
-    if model.envelope is not None and (
-        why := why_outside(model.envelope, q, cfg.envelope_margin_deg)
-    ):
-        return replace(reply, trusted=False, reason=f"envelope: {why}")
+    if model.envelope is not None:
+        temps = {
+            n: float(v[0])
+            for n, v in temperature_readings(model.spec, request_features(model, req, q)).items()
+        }
+        if why := why_outside(
+            model.envelope, q, temps, cfg.envelope_margin_deg, cfg.envelope_margin_k
+        ):
+            return replace(reply, trusted=False, reason=f"envelope: {why}")
     return reply
 
 

@@ -177,7 +177,7 @@ class Continual(Command):
             out["day_past_envelope"] = result.day_past_envelope
             text += (
                 f"\n{100 * result.day_past_envelope:.1f}% of this day's poses lay past the joint "
-                f"angles {args.start} was trained on"
+                f"angles or temperatures {args.start} was trained on"
             )
         return _emit_learned(result, out, text, args.json)
 
@@ -225,7 +225,7 @@ class Evaluate(Command):
         if envelope["n_outside"]:
             text += (
                 f"\n{100 * envelope['outside_share']:.1f}% of the poses lie past the joint angles"
-                " the model was trained on (compensation does not trust them)"
+                " or temperatures the model was trained on (compensation does not trust them)"
             )
             if envelope["inside"] is not None:
                 text += "; " + _report_text("the others", envelope["inside"])

@@ -129,7 +129,7 @@ def test_any_request_gets_an_answer_or_a_named_reason(fanuc, q, xyz, quat):
         lim = robot.description.limits_rad
         assert np.all((lim[:, 0] <= reply.q_corrected) & (reply.q_corrected <= lim[:, 1]))
         assert reply.residual_m <= GuardConfig().max_residual_m
-        assert not past_envelope(fanuc[1], np.array([q]), MARGIN_DEG)[0]
+        assert not past_envelope(fanuc[1], np.array([[*q, 20.0]]), MARGIN_DEG)[0]
 
 
 @pytest.mark.parametrize("joint", [0, 4])
@@ -152,3 +152,27 @@ def test_a_joint_past_the_angles_trained_on_is_not_trusted(fanuc, joint):
     q[joint] = 0.0
     q[5] = 0.8 * robot.description.limits_rad[5, 1]  # J6 (±360°) was trained over a whole turn
     assert answer(fanuc, cfg, q=tuple(q)).trusted
+
+
+def test_a_temperature_past_the_readings_trained_on_is_not_trusted(fanuc):
+    """Trained at 20 °C only: a command at 22 °C gets the correction but ``envelope``, naming the
+    thermometer and the readings; within ``envelope_margin_k`` it is trusted."""
+    robot, model = fanuc
+    cfg = CompensationConfig(max_iterations=10, epistemic_limit_mm=1e3)  # this flag alone
+
+    def at(celsius: float):
+        req = CompensationRequest(q=(0.0,) * 6, temperatures={"ambient": celsius})
+        return guarded_compensate(model, robot, req, cfg, 7)
+
+    assert at(20.0).trusted and at(20.9).trusted and at(19.1).trusted
+    reply = at(22.0)
+    assert refused(reply) == "envelope"
+    assert reply.reason == (
+        "envelope: temp_ambient = 22.0 degC is more than 1 K outside the temperatures trained "
+        "on (20.0..20.0 degC)"
+    )
+    assert reply.q_corrected != (0.0,) * 6  # corrected all the same: the flag is the warning
+    wider = CompensationConfig(max_iterations=10, epistemic_limit_mm=1e3, envelope_margin_k=3.0)
+    assert guarded_compensate(
+        model, robot, CompensationRequest(q=(0.0,) * 6, temperatures={"ambient": 22.0}), wider, 7
+    ).trusted
