@@ -77,7 +77,8 @@ def test_a_thermometer_past_its_trained_readings_by_more_than_the_margin_is_outs
     seen = widen(None, deg(0, 10)[:, None], {"temp_a": [22.0, 23.5]})
     seen = widen(seen, deg(5)[:, None], {"temp_a": [21.0], "temp_b": [30.0]})  # a union
     assert seen.temperatures == {"temp_a": (21.0, 23.5), "temp_b": (30.0, 30.0)}
-    temps = {"temp_a": [20.0 + 1e-9, 24.5, 24.6, 19.9], "temp_b": 30.0}
+    lo, hi = 21.0 - MARGIN_K, 23.5 + MARGIN_K
+    temps = {"temp_a": [lo + 1e-9, hi, hi + 0.1, lo - 0.1], "temp_b": 30.0}
     assert outside(seen, deg(5, 5, 5, 5)[:, None], temps).tolist() == [False, False, True, True]
     assert outside(seen, deg(5)[:, None], {"temp_a": 24.6}, margin_k=2.0).tolist() == [False]
     assert not outside(seen, deg(5)[:, None], {"temp_c": 99.0}).any()  # never trained: unknown

@@ -155,7 +155,7 @@ def test_a_joint_past_the_angles_trained_on_is_not_trusted(fanuc, joint):
 
 
 def test_a_temperature_past_the_readings_trained_on_is_not_trusted(fanuc):
-    """Trained at 20 °C only: a command at 22 °C gets the correction but ``envelope``, naming the
+    """Trained at 20 °C only: a command at 20.6 °C gets the correction but ``envelope``, naming the
     thermometer and the readings; within ``envelope_margin_k`` it is trusted."""
     robot, model = fanuc
     cfg = CompensationConfig(max_iterations=10, epistemic_limit_mm=1e3)  # this flag alone
@@ -164,11 +164,11 @@ def test_a_temperature_past_the_readings_trained_on_is_not_trusted(fanuc):
         req = CompensationRequest(q=(0.0,) * 6, temperatures={"ambient": celsius})
         return guarded_compensate(model, robot, req, cfg, 7)
 
-    assert at(20.0).trusted and at(20.9).trusted and at(19.1).trusted
-    reply = at(22.0)
+    assert at(20.0).trusted and at(20.4).trusted and at(19.6).trusted
+    reply = at(20.6)
     assert refused(reply) == "envelope"
     assert reply.reason == (
-        "envelope: temp_ambient = 22.0 degC is more than 1 K outside the temperatures trained "
+        "envelope: temp_ambient = 20.6 degC is more than 0.5 K outside the temperatures trained "
         "on (20.0..20.0 degC)"
     )
     assert reply.q_corrected != (0.0,) * 6  # corrected all the same: the flag is the warning
