@@ -262,7 +262,7 @@ class ContinualConfig:
     update_lr: float = 1e-3
     holdout: float = 0.1
     calibration_size: int = 1000
-    average: float = 0.3
+    average: float = 0.4
     base: str = "auto"
     aci_rate: float = 0.05
     aci_level: float = 0.9
