@@ -49,10 +49,12 @@ Readings = Mapping[str, "np.ndarray | float"]
 @dataclass(frozen=True)
 class Envelope:
     """Per joint the 5° bins of the angles trained on (bool ``(n_joints, 72)``); per
-    thermometer the lowest and highest reading trained on (°C)."""
+    thermometer the lowest and highest reading trained on (°C). ``temperatures`` None: not
+    recorded (a model trained before they were), so never checked, however it goes on
+    learning: what it learned before is unknown."""
 
     joints: np.ndarray
-    temperatures: dict[str, tuple[float, float]] = field(default_factory=dict)
+    temperatures: dict[str, tuple[float, float]] | None = field(default_factory=dict)
 
 
 def widen(
@@ -64,6 +66,9 @@ def widen(
     seen = np.zeros((q.shape[1], N_BINS), dtype=bool)
     for j, bins in enumerate(_bins(q).T):
         seen[j, bins] = True
+    joints = seen if envelope is None else envelope.joints | seen
+    if envelope is not None and envelope.temperatures is None:
+        return Envelope(joints, None)
     ranges = {} if envelope is None else dict(envelope.temperatures)
     for name, values in (temperatures or {}).items():
         values = np.asarray(values, dtype=float)
@@ -71,7 +76,7 @@ def widen(
         if name in ranges:
             lo, hi = min(lo, ranges[name][0]), max(hi, ranges[name][1])
         ranges[name] = (lo, hi)
-    return Envelope(seen if envelope is None else envelope.joints | seen, ranges)
+    return Envelope(joints, ranges)
 
 
 def outside(
@@ -85,12 +90,13 @@ def outside(
     (rounded up to whole bins) outside its arc, or a thermometer read more than ``margin_k``
     outside its trained readings? ``(N,)`` bool. Thermometers the envelope has no readings of
     are not checked."""
+    known = envelope.temperatures or {}
     q = np.atleast_2d(np.asarray(q, dtype=float))
     near = _near(envelope.joints, margin_deg)
     out = ~near[np.arange(q.shape[1]), _bins(q)].all(axis=1)
     for name, values in (temperatures or {}).items():
-        if name in envelope.temperatures:
-            lo, hi = envelope.temperatures[name]
+        if name in known:
+            lo, hi = known[name]
             values = np.broadcast_to(np.asarray(values, dtype=float), out.shape)
             out |= (values < lo - margin_k) | (values > hi + margin_k)
     return out
@@ -114,7 +120,7 @@ def why_outside(
                 f"the angles trained on ({_arc_text(_arcs(envelope.joints)[j])} deg)"
             )
     for name, value in (temperatures or {}).items():
-        lo, hi = envelope.temperatures.get(name, (-np.inf, np.inf))
+        lo, hi = (envelope.temperatures or {}).get(name, (-np.inf, np.inf))
         if not lo - margin_k <= float(value) <= hi + margin_k:
             return (
                 f"{name} = {float(value):.1f} degC is more than {margin_k:g} K outside the "

@@ -170,19 +170,20 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
 def _envelope_tensors(envelope: Envelope, spec: FeatureSpec) -> dict[str, torch.Tensor]:
     """``joint_envelope`` (uint8 ``(n_joints, 72)``) and ``temperature_envelope`` (float64
     ``(n_thermometers, 2)``, lowest and highest °C, in the spec's order; absent without
-    thermometers)."""
+    thermometers or when they were not recorded)."""
     tensors = {"joint_envelope": torch.as_tensor(np.asarray(envelope.joints, dtype=np.uint8))}
     names = temperature_columns(spec.names)
-    if names and all(n in envelope.temperatures for n in names):
-        ranges = [envelope.temperatures[n] for n in names]
+    known = envelope.temperatures
+    if names and known is not None and all(n in known for n in names):
+        ranges = [known[n] for n in names]
         tensors["temperature_envelope"] = torch.as_tensor(np.array(ranges, dtype=np.float64))
     return tensors
 
 
 def _envelope(tensors: dict, spec: FeatureSpec) -> Envelope | None:
     """The envelope of the ``joint_envelope`` and ``temperature_envelope`` tensors; None when
-    the first is absent, no temperatures when the second is (snapshots written before they
-    existed). Another shape is a SnapshotError: compensation indexes them."""
+    the first is absent, temperatures not recorded when the second is (snapshots written before
+    they existed). Another shape is a SnapshotError: compensation indexes them."""
     if "joint_envelope" not in tensors:
         return None
     joints = tensors["joint_envelope"].numpy()
@@ -191,7 +192,7 @@ def _envelope(tensors: dict, spec: FeatureSpec) -> Envelope | None:
         raise SnapshotError(f"joint_envelope has shape {joints.shape}, expected {shape}")
     names = temperature_columns(spec.names)
     if "temperature_envelope" not in tensors:
-        return Envelope(joints.astype(bool))
+        return Envelope(joints.astype(bool), None if names else {})
     ranges = tensors["temperature_envelope"].numpy()
     if ranges.shape != (len(names), 2):
         raise SnapshotError(
