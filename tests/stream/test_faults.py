@@ -70,7 +70,9 @@ def client_config(endpoint: str) -> BusConfig:
 def test_router_killed_and_restarted_sources_and_stages_reconnect_loss_counted(tmp_path):
     torch.set_num_threads(1)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    ds = simulate(get_scenario("paper"), 90, 11)
+    # 150 points: after the first model (40 points in) the stream runs long enough for another
+    # update after the restart even when a loaded machine slows the first model down
+    ds = simulate(get_scenario("paper"), 150, 11)
     robot = ds.meta.robot
     router = start_router(endpoint)
     log_path = tmp_path / "daemon.jsonl"
