@@ -105,7 +105,15 @@ def envelope_report(
     model: ErrorModel, X: np.ndarray, Y: np.ndarray, margin_deg: float = MARGIN_DEG
 ) -> dict:
     """How much of ``X, Y`` lies past the joint angles or temperatures ``model`` was trained on
-    (a share, a count) and the accuracy of the rest (None when nothing is left)."""
+    (a share, a count; how many by a joint, how many by a thermometer alone) and the accuracy
+    of the rest (None when nothing is left)."""
     out = past_envelope(model, X, margin_deg)
+    by_joint = past_envelope(model, X, margin_deg, margin_k=np.inf)
     inside = accuracy_report(model, X[~out], Y[~out]).to_dict() if (~out).any() else None
-    return {"outside_share": float(out.mean()), "n_outside": int(out.sum()), "inside": inside}
+    return {
+        "outside_share": float(out.mean()),
+        "n_outside": int(out.sum()),
+        "n_past_joints": int(by_joint.sum()),
+        "n_past_temperatures_only": int((out & ~by_joint).sum()),
+        "inside": inside,
+    }

@@ -225,7 +225,9 @@ class Evaluate(Command):
         if envelope["n_outside"]:
             text += (
                 f"\n{100 * envelope['outside_share']:.1f}% of the poses lie past the joint angles"
-                " or temperatures the model was trained on (compensation does not trust them)"
+                f" ({envelope['n_past_joints']}) or only the temperatures"
+                f" ({envelope['n_past_temperatures_only']}) the model was trained on (compensation"
+                " does not trust them)"
             )
             if envelope["inside"] is not None:
                 text += "; " + _report_text("the others", envelope["inside"])

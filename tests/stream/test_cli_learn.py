@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from kinematics.dataset import write_dataset
+from kinematics.dataset import temperature_columns, write_dataset
 from learner.snapshot import load_snapshot
 from sim_sources.unseen import UnseenSpec, write_unseen
 from stream.cli import main
@@ -75,8 +75,16 @@ def test_evaluate_names_the_poses_past_the_angles_trained_on(tmp_path, capsys):
     envelope = _json(capsys)["envelope"]
     assert 0.35 < envelope["outside_share"] < 0.55  # q1 > 0 (+5°): half the poses
     assert envelope["inside"]["n"] == 120 - envelope["n_outside"]
+    assert envelope["n_past_joints"] + envelope["n_past_temperatures_only"] == envelope["n_outside"]
     assert main(argv) == 0
     assert "of the poses lie past the joint angles" in capsys.readouterr().out
+    warm = make_dataset(120, seed=4, q1_range=(-2.0, 0.0))  # the trained half, 30 K warmer
+    warm.table[temperature_columns(warm.table)] += 30.0
+    write_dataset(warm, tmp_path / "warm.parquet")
+    warm_argv = ["evaluate", "--model", str(model), "--data", str(tmp_path / "warm.parquet")]
+    assert main([*warm_argv, "--json"]) == 0
+    hot = _json(capsys)["envelope"]
+    assert hot["n_outside"] == 120 and hot["n_past_temperatures_only"] > 100
     # carried into that day, continual says the same of the day's poses before it learns them
     day = ["--from", str(model), "--test-fraction", "0", "--init", "40"]
     out = _continual(capsys, tmp_path / "all.parquet", tmp_path / "m2.safetensors", *day)
