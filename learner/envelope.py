@@ -98,7 +98,7 @@ def outside(
         if name in known:
             lo, hi = known[name]
             values = np.broadcast_to(np.asarray(values, dtype=float), out.shape)
-            out |= (values < lo - margin_k) | (values > hi + margin_k)
+            out |= ~((values >= lo - margin_k) & (values <= hi + margin_k))  # NaN: outside
     return out
 
 
