@@ -108,12 +108,25 @@ def test_a_full_disk_stops_the_daemon_with_one_line_and_exit_2(tmp_path, small_f
     print(f"\nfull disk (stop): exit {code}, one line: {failed[0]['cause']}")
 
 
+def remount(state: Path, mode: str) -> None:
+    """Remount ``state`` ``ro`` or ``rw``. A write in flight (the daemon's stages write all the
+    time) fails a read-only remount with "mount point is busy": tried again a moment later,
+    it is the same fault."""
+    for _ in range(100):
+        cmd = ["mount", "-o", f"remount,{mode}", str(state)]
+        done = subprocess.run(cmd, capture_output=True, text=True)
+        if done.returncode == 0 or "busy" not in done.stderr:
+            break
+        time.sleep(0.02)
+    assert done.returncode == 0, f"remount,{mode} {state}: {done.stderr.strip()}"
+
+
 def test_a_read_only_state_dir_with_wait_pauses_then_resumes(tmp_path, small_fs):
     def read_only(state):
-        subprocess.run(["mount", "-o", "remount,ro", str(state)], check=True)
+        remount(state, "ro")
 
     def writable(state):
-        subprocess.run(["mount", "-o", "remount,rw", str(state)], check=True)
+        remount(state, "rw")
 
     code, events, ckpt, marks, models = run_cell(
         tmp_path, small_fs, "wait", read_only, recover=writable
