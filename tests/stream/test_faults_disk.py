@@ -171,12 +171,12 @@ def test_a_temporary_left_by_a_read_only_remount_goes_once_the_write_succeeds(tm
 
     def cut_by_remount(tmp: str) -> None:
         whole(tmp)
-        subprocess.run(["mount", "-o", "remount,ro", str(small_fs)], check=True)
+        remount(small_fs, "ro")
 
     def write() -> None:
         tries.append(len(tries))
         if len(tries) == 2:
-            subprocess.run(["mount", "-o", "remount,rw", str(small_fs)], check=True)
+            remount(small_fs, "rw")
         atomic_write(path, cut_by_remount if len(tries) == 1 else whole)
 
     try:
