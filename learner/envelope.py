@@ -96,9 +96,7 @@ def outside(
     out = ~near[np.arange(q.shape[1]), _bins(q)].all(axis=1)
     for name, values in (temperatures or {}).items():
         if name in known:
-            lo, hi = known[name]
-            values = np.broadcast_to(np.asarray(values, dtype=float), out.shape)
-            out |= ~((values >= lo - margin_k) & (values <= hi + margin_k))  # NaN: outside
+            out |= ~_within(known[name], np.broadcast_to(values, out.shape), margin_k)
     return out
 
 
@@ -119,14 +117,24 @@ def why_outside(
                 f"q{j + 1} = {np.rad2deg(q[j]):.1f} deg is more than {margin_deg:g} deg outside "
                 f"the angles trained on ({_arc_text(_arcs(envelope.joints)[j])} deg)"
             )
+    known = envelope.temperatures or {}
     for name, value in (temperatures or {}).items():
-        lo, hi = (envelope.temperatures or {}).get(name, (-np.inf, np.inf))
-        if not lo - margin_k <= float(value) <= hi + margin_k:
+        if name in known and not _within(known[name], value, margin_k):
+            lo, hi = known[name]
             return (
                 f"{name} = {float(value):.1f} degC is more than {margin_k:g} K outside the "
                 f"temperatures trained on ({lo:.1f}..{hi:.1f} degC)"
             )
     return ""
+
+
+def _within(
+    trained: tuple[float, float], values: np.ndarray | float, margin_k: float
+) -> np.ndarray:
+    """Whether readings (°C) lie within ``margin_k`` of the ``(lowest, highest)`` trained on;
+    a NaN reading does not."""
+    values = np.asarray(values, dtype=float)
+    return (values >= trained[0] - margin_k) & (values <= trained[1] + margin_k)
 
 
 def _bins(q: np.ndarray) -> np.ndarray:

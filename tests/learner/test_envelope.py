@@ -82,6 +82,7 @@ def test_a_thermometer_past_its_trained_readings_by_more_than_the_margin_is_outs
     assert outside(seen, deg(5, 5, 5, 5)[:, None], temps).tolist() == [False, False, True, True]
     assert outside(seen, deg(5)[:, None], {"temp_a": 24.6}, margin_k=2.0).tolist() == [False]
     assert not outside(seen, deg(5)[:, None], {"temp_c": 99.0}).any()  # never trained: unknown
+    assert why_outside(seen, deg(5), {"temp_c": float("nan")}) == ""  # the same for people
     assert outside(seen, deg(5)[:, None], {"temp_a": float("nan")}).all()  # as why_outside says
     assert why_outside(seen, deg(5), {"temp_a": float("nan")}).startswith("temp_a = nan degC")
     assert why_outside(seen, deg(5), {"temp_a": 22.0, "temp_b": 28.5}) == (
