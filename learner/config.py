@@ -230,9 +230,10 @@ class ContinualConfig:
     An update trains ``epochs_per_update`` epochs over up to ``update_points`` memory points
     and proportionally fewer over more (:meth:`update_epochs`), so a larger memory costs
     little update time. ``memory`` 4,000: a real line streams its program in order, sweeping
-    the workspace, and UR10 Series A (10,720 points) streamed so ends at 0.150 mm against
-    0.213 mm at 2,000 (its batch model 0.081 mm); the paper campaign is the same at either
-    (0.0253 mm), random arms' 6,000-point streams 0.093 against 0.095 mm (BENCHMARKS.md).
+    the workspace, and UR10 Series A (10,720 points) streamed so ended at 0.150 mm against
+    0.213 mm at 2,000 (its batch model 0.081 mm; 0.124 mm at 4,000 with today's network and
+    ``average``); the paper campaign is the same at either (0.0252 / 0.0250 mm), random arms'
+    6,000-point streams 0.093 against 0.095 mm (BENCHMARKS.md).
     ``calibration_size`` 1,000: a FIFO of 200 held only the front of a long stream, and its
     intervals covered 82-89 % of those arms' test points (now 90-91 %).
     ``base`` is the physics base the first model is identified on from the ``init`` points
