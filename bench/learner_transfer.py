@@ -8,8 +8,9 @@ one update on them, and the new series' held-out test error (10 %, seed 0, drawn
 series) with 90 % coverage and how much wider the epistemic spread is there than on the source's
 own test points, and the share of test points the compensation service would flag as untrusted
 (epistemic std above its limit, or a joint or thermometer past the angles or temperatures the
-model was trained on, ``learner.envelope``: both shares, and either) with the 90 % coverage on
-the trusted ones. Both directions, ``--seeds`` seeds. ``--cache DIR`` keeps the trained source
+model was trained on, ``learner.envelope``: both shares; or all of them while the model is
+``unverified``, a carry that took the frames as moved) with the 90 % coverage on the trusted
+ones. Both directions, ``--seeds`` seeds. ``--cache DIR`` keeps the trained source
 models (by series, base, seed and epochs) for the next run. ``--base-a`` / ``--base-b`` are the
 source models' bases (a kind or a model file, e.g. ``robocal gap``'s), ``--frame-prior-mm`` /
 ``--moved-frame-prior-mm`` the carry's frame priors (equal: no choice; ``ContinualConfig``);
@@ -101,7 +102,7 @@ def transfer(
         inside = (Yte[:, :3] >= lo[:, :3]) & (Yte[:, :3] <= hi[:, :3])
         over_limit = epi_std.max(axis=1) * 1e3 > EPISTEMIC_LIMIT_MM
         past = past_envelope(learner.model, Xte)
-        untrusted = over_limit | past
+        untrusted = over_limit | past | bool(learner.model.unverified)
         rows.append(
             {
                 "k": k,

@@ -249,8 +249,11 @@ class ContinualLearner:
         carried network's gain on these points (:meth:`ErrorModel.weigh_residual`); returns it.
         Gain and scale are re-fitted on the day's held-out points once :data:`MIN_DAY_POINTS`
         are there; until then the model's scale stands, or if the frames moved, no narrower than
-        these points show to frames fitted without them (:func:`learner.carry.held_out_labels`).
-        The day's trained points are kept to fit its frames again (:class:`CarriedDay`)."""
+        these points show to frames fitted without them (:func:`learner.carry.held_out_labels`)
+        and marked :attr:`~ErrorModel.unverified` (compensation does not trust it): a scale from
+        the first points of one region covered 70-76 % of the points it then trusted (UR10 B→A,
+        25-50 points, BENCHMARKS.md). The day's trained points are kept to fit its frames again
+        (:class:`CarriedDay`)."""
         X, Y = self._check(X, Y)
         spec, residual, priors = self.model.spec, self.model.residual(X), self._frame_priors
         old, (base, moved) = self.base, carried_frames(self.base, spec, X, Y, residual, *priors)
@@ -259,9 +262,14 @@ class ContinualLearner:
         self._cal_x, self._cal_y = self._cal_x[:0], self._cal_y[:0]
         self.trained.residual_gain = self.model.weigh_residual(X, Y)
         scale = self.model.interval_scale.copy()
+        self.model.unverified = ""
         if moved:
             held = held_out_labels(old, spec, X, Y, residual, priors[1], base)
             self.model.interval_scale = scale = np.maximum(scale, self.model.calibrate(X, held))
+            self.model.unverified = (
+                f"the frames moved on this day ({len(X)} points); its intervals are checked once "
+                f"{MIN_DAY_POINTS} of its points are held out"
+            )
         self.day_scale = scale / np.exp(self.aci_log_scale)
         return self.trained.residual_gain
 
@@ -330,6 +338,7 @@ class ContinualLearner:
         elif len(self._cal_x) >= MIN_CALIBRATION:
             if carried:
                 self.trained.residual_gain = self.model.weigh_residual(self._cal_x, self._cal_y)
+                self.model.unverified = ""  # the day's own held-out points calibrate it now
             self.model.calibrate(self._cal_x, self._cal_y)
         else:
             self.model.interval_scale = self.trained.interval_scale.copy()

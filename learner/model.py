@@ -79,6 +79,7 @@ class ErrorModel:
         base: PhysicsBase | None = None,
         residual_gain: float = 1.0,
         envelope: Envelope | None = None,
+        unverified: str = "",
     ) -> None:
         self.spec = spec
         self.base = base
@@ -93,6 +94,10 @@ class ErrorModel:
         )
         self.residual_gain = float(residual_gain)
         self.envelope = envelope  # the joint angles and temperatures trained on
+        #: Why its intervals are not to be stood behind yet ("" when they are): a carry that
+        #: took the frames as moved, until the day's own held-out points have checked them
+        #: (:meth:`learner.continual.ContinualLearner.carry`). Compensation flags it.
+        self.unverified = unverified
         self.net = EvidentialEnsemble(
             n_inputs=n_inputs(spec, model_cfg.encoding),
             hidden_layers=model_cfg.hidden_layers,

@@ -8,7 +8,8 @@ The physics base travels too (kind, note, description TOML and effects in the JS
 ``T_0_B`` and tool as float64 tensors), so a reloaded model predicts what it predicted; so do
 the joint angles and temperatures it was trained on (``joint_envelope``,
 ``temperature_envelope``, :mod:`learner.envelope`; absent in snapshots written before they
-existed, which compensation then does not check). Version
+existed, which compensation then does not check), and why its intervals are not verified yet
+(``unverified``, a carry's moved frames; absent: verified). Version
 1 snapshots (before input encodings and members existed) load as ``encoding = "minmax"``, one
 member; snapshots without a base load on the nominal.
 
@@ -89,6 +90,7 @@ def snapshot_to_bytes(model: ErrorModel, extra_meta: dict | None = None) -> byte
         "metrics": model.metrics,
         "base": None if base is None else _base_meta(base),
         "residual_gain": model.residual_gain,
+        "unverified": model.unverified,
         "extra": extra_meta or {},
     }
     try:
@@ -155,6 +157,7 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
             base=_base_from_meta(meta.get("base"), tensors),
             residual_gain=float(meta.get("residual_gain", 1.0)),
             envelope=_envelope(tensors, spec),
+            unverified=str(meta.get("unverified", "")),
         )
         state = {k[len("net.") :]: v for k, v in tensors.items() if k.startswith("net.")}
         model.net.load_state_dict(state, strict=True)

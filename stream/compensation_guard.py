@@ -9,7 +9,9 @@ more than ``max_residual_m``), ``corrected_limits`` (the corrected command leave
 ``epistemic`` (the model has not seen data like this), ``envelope`` (a joint more than
 ``envelope_margin_deg`` past the angles the model was trained on, or a thermometer more than
 ``envelope_margin_k`` past the temperatures, :mod:`learner.envelope`: its base and network
-extrapolate there and its intervals do not know it). A refusal before solving
+extrapolate there and its intervals do not know it), ``unverified`` (a model carried into a
+day whose frames moved, whose intervals its own held-out points have not yet checked:
+:attr:`learner.model.ErrorModel.unverified`). A refusal before solving
 answers with the uncorrected command and the error predicted there (zeros when even that fails).
 
 A command the solver cannot land within ``max_residual_m`` (near a singular pose) is answered
@@ -136,6 +138,8 @@ def guarded_compensate(
             model.envelope, q, temps, cfg.envelope_margin_deg, cfg.envelope_margin_k
         ):
             return replace(reply, trusted=False, reason=f"envelope: {why}")
+    if model.unverified:
+        return replace(reply, trusted=False, reason=f"unverified: {model.unverified}")
     return reply
 
 

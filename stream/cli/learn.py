@@ -231,6 +231,9 @@ class Evaluate(Command):
             )
             if envelope["inside"] is not None:
                 text += "; " + _report_text("the others", envelope["inside"])
+        report["unverified"] = model.unverified
+        if model.unverified:
+            text += f"\nunverified: {model.unverified} (compensation trusts none of its answers)"
         emit(report, args.json, text)
         return 0
 

@@ -12,7 +12,7 @@ from kinematics.model import RobotModel
 from learner.base import identify_base
 from learner.carry import CarriedDay, reidentify_frames
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
-from learner.continual import ContinualLearner, state_from_bytes, state_to_bytes
+from learner.continual import MIN_DAY_POINTS, ContinualLearner, state_from_bytes, state_to_bytes
 from learner.model import ErrorModel
 from learner.snapshot import snapshot_from_bytes, snapshot_to_bytes
 from learner.workflow import prepare
@@ -141,3 +141,24 @@ def test_a_day_limit_of_0_keeps_the_first_points_frames(day):
     assert learner.base is carried and len(learner.day.x) == 0
     with pytest.raises(ConfigError, match="day_frame_points"):
         ContinualConfig(day_frame_points=-1)
+
+
+def test_a_day_whose_frames_moved_is_unverified_until_its_own_points_check_it(day):
+    """The carry's scale comes from the day's first points of one side; compensation is not to
+    trust it (``ErrorModel.unverified``, in the snapshot) until ``MIN_DAY_POINTS`` of the day's
+    points are held out and calibrate it. A day whose frames held is verified from the start."""
+    p, model, X, Y, _ = day
+    learner = _carried(model, X, Y)
+    assert learner.model.unverified.startswith("the frames moved on this day (30 points)")
+    assert snapshot_from_bytes(snapshot_to_bytes(learner.model)).unverified == (
+        learner.model.unverified
+    )
+    learner.update(X[:50], Y[:50])  # 10 of the day's points held out
+    assert learner.model.unverified
+    learner.update(X[50:100], Y[50:100])
+    assert len(learner.state_dict()["holdout_x"]) == MIN_DAY_POINTS
+    assert learner.model.unverified == ""
+    assert snapshot_from_bytes(snapshot_to_bytes(learner.model)).unverified == ""
+    same_day = ContinualLearner(snapshot_from_bytes(snapshot_to_bytes(model)), CFG)
+    same_day.carry(p.X[200:230], p.Y[200:230])
+    assert "frames held" in same_day.base.note and same_day.model.unverified == ""

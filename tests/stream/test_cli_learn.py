@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from kinematics.dataset import temperature_columns, write_dataset
-from learner.snapshot import load_snapshot
+from learner.snapshot import load_snapshot, save_snapshot
 from sim_sources.unseen import UnseenSpec, write_unseen
 from stream.cli import main
 from tests.learner.conftest import make_dataset
@@ -46,8 +46,19 @@ def test_train_then_evaluate(data_file, tmp_path, capsys):
     assert report["n"] == 160 and report["mean_mm"] > 0
     assert report["envelope"]["n_outside"] == 0  # its own data: every pose was trained on
     assert report["envelope"]["inside"]["n"] == 160
+    assert report["unverified"] == ""
     assert main(["evaluate", "--model", str(model), "--data", str(data_file)]) == 0
     assert "90% interval covers" in capsys.readouterr().out
+    carried = load_snapshot(model)  # as a carry that took the frames as moved leaves it
+    carried.unverified = "the frames moved on this day (30 points)"
+    save_snapshot(carried, tmp_path / "carried.safetensors")
+    assert (
+        main(
+            ["evaluate", "--model", str(tmp_path / "carried.safetensors"), "--data", str(data_file)]
+        )
+        == 0
+    )
+    assert "unverified: the frames moved on this day (30 points)" in capsys.readouterr().out
 
 
 def evaluate_envelope(model: Path, data: Path) -> int:

@@ -23,6 +23,7 @@ CODES = (
     "corrected_limits",
     "epistemic",
     "envelope",
+    "unverified",
 )
 
 
@@ -176,3 +177,20 @@ def test_a_temperature_past_the_readings_trained_on_is_not_trusted(fanuc):
     assert guarded_compensate(
         model, robot, CompensationRequest(q=(0.0,) * 6, temperatures={"ambient": 22.0}), wider, 7
     ).trusted
+
+
+def test_a_model_whose_intervals_the_day_has_not_checked_is_not_trusted(fanuc):
+    """A carry that took the frames as moved marks the model ``unverified``: every answer gets
+    the correction but ``unverified``, with the carry's words, until the day has checked it."""
+    robot, model = fanuc
+    cfg = CompensationConfig(max_iterations=10, epistemic_limit_mm=1e3)  # this flag alone
+    req = CompensationRequest(q=(0.0,) * 6, temperatures={"ambient": 20.0})
+    assert guarded_compensate(model, robot, req, cfg, 7).trusted
+    model.unverified = "the frames moved on this day (30 points)"
+    try:
+        reply = guarded_compensate(model, robot, req, cfg, 7)
+    finally:
+        model.unverified = ""
+    assert refused(reply) == "unverified"
+    assert reply.reason == "unverified: the frames moved on this day (30 points)"
+    assert reply.q_corrected != (0.0,) * 6
