@@ -31,14 +31,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from kinematics.errors import DatasetError
 from kinematics.model import RobotModel
 from learner.base import PhysicsBase, identify_base, nominal_base
 from learner.carry import CarriedDay, carried_frames, held_out_labels
 from learner.config import ContinualConfig
 from learner.conformal import adapt_log_scale
 from learner.continual_base import REFINED, doubled, due, memory_base, refined_base, status
-from learner.continual_records import Memory, UpdateMetrics
+from learner.continual_records import Memory, UpdateMetrics, checked_batch
 from learner.continual_state import (  # noqa: F401
     STATE_SCHEMA,
     learner_state,
@@ -57,6 +56,11 @@ from learner.training import Trainer, TrainReport
 #: network's gain and the interval scale are re-fitted after each update (a scale fitted on
 #: UR10 B's first 10 held-out points covered 68-82 % of the series).
 MIN_DAY_POINTS = 20
+#: Why a day whose frames moved is not trusted until :data:`MIN_DAY_POINTS` of it are held out.
+_UNVERIFIED = (
+    f"the frames moved on this day ({{n}} points); its intervals are checked once "
+    f"{MIN_DAY_POINTS} of its points are held out"
+)
 
 
 class ContinualLearner:
@@ -96,7 +100,7 @@ class ContinualLearner:
 
     def screen(self, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
         """Which new points pass the quarantine (bool per row); counted in :attr:`quarantine`."""
-        X, Y = self._check(X, Y)
+        X, Y = checked_batch(X, Y, self.model.spec.n_features)
         r, z = model_residuals(self.model, X, Y)
         accepted, self.quarantine = screen(Y, r, z, self.quarantine, self.cfg.quarantine)
         return accepted
@@ -104,7 +108,7 @@ class ContinualLearner:
     def initialize(self, X: np.ndarray, Y: np.ndarray, screened: bool = False) -> UpdateMetrics:
         """Train the first model on those of ``X, Y`` (normally the first ``init`` points) that
         pass the quarantine (all when ``screened`` already)."""
-        X, Y = self._check(X, Y)
+        X, Y = checked_batch(X, Y, self.model.spec.n_features)
         n_in = len(X)
         ok = np.ones(n_in, dtype=bool) if screened else self.screen(X, Y)
         X, Y = X[ok], Y[ok]
@@ -135,7 +139,7 @@ class ContinualLearner:
         """Learn one batch: keep out what the quarantine refuses (unless ``screened`` already),
         hold out a share for calibration, select the memory from memory ∪ the rest, train on
         it, recalibrate the intervals on the held-out set; publish unless the gate withholds."""
-        X_new, Y_new = self._check(X_new, Y_new)
+        X_new, Y_new = checked_batch(X_new, Y_new, self.model.spec.n_features)
         n_in = len(X_new)
         ok = np.ones(n_in, dtype=bool) if screened else self.screen(X_new, Y_new)
         X_new, Y_new, out = X_new[ok], Y_new[ok], {"quarantined": int(n_in - ok.sum())}
@@ -235,7 +239,7 @@ class ContinualLearner:
     def remember(self, X: np.ndarray, Y: np.ndarray) -> None:
         """Fill the memory from points the model was trained on (a batch-trained model that goes
         on learning): the ``memory`` worst predicted, as max-error replay keeps them."""
-        X, Y = self._check(X, Y)
+        X, Y = checked_batch(X, Y, self.model.spec.n_features)
         errors = np.linalg.norm(
             (self.trained.predict(X).gamma - Y) / self.trained.label_std, axis=1
         )
@@ -250,11 +254,10 @@ class ContinualLearner:
         Gain and scale are re-fitted on the day's held-out points once :data:`MIN_DAY_POINTS`
         are there; until then the model's scale stands, or if the frames moved, no narrower than
         these points show to frames fitted without them (:func:`learner.carry.held_out_labels`)
-        and marked :attr:`~ErrorModel.unverified` (compensation does not trust it): a scale from
-        the first points of one region covered 70-76 % of the points it then trusted (UR10 B→A,
-        25-50 points, BENCHMARKS.md). The day's trained points are kept to fit its frames again
-        (:class:`CarriedDay`)."""
-        X, Y = self._check(X, Y)
+        and :attr:`~ErrorModel.unverified` (compensation trusts none of it: on UR10 B→A that
+        scale covered 70-76 % of what it would trust). The day's trained points are kept to fit
+        its frames again (:class:`CarriedDay`)."""
+        X, Y = checked_batch(X, Y, self.model.spec.n_features)
         spec, residual, priors = self.model.spec, self.model.residual(X), self._frame_priors
         old, (base, moved) = self.base, carried_frames(self.base, spec, X, Y, residual, *priors)
         self.day = CarriedDay.start(old, len(X), spec.n_features)
@@ -262,14 +265,10 @@ class ContinualLearner:
         self._cal_x, self._cal_y = self._cal_x[:0], self._cal_y[:0]
         self.trained.residual_gain = self.model.weigh_residual(X, Y)
         scale = self.model.interval_scale.copy()
-        self.model.unverified = ""
+        self.model.unverified = _UNVERIFIED.format(n=len(X)) if moved else ""
         if moved:
             held = held_out_labels(old, spec, X, Y, residual, priors[1], base)
             self.model.interval_scale = scale = np.maximum(scale, self.model.calibrate(X, held))
-            self.model.unverified = (
-                f"the frames moved on this day ({len(X)} points); its intervals are checked once "
-                f"{MIN_DAY_POINTS} of its points are held out"
-            )
         self.day_scale = scale / np.exp(self.aci_log_scale)
         return self.trained.residual_gain
 
@@ -370,18 +369,6 @@ class ContinualLearner:
             train_mean_mm=train_mm,
             skipped_steps=0 if report is None else report.skipped_steps,
         )
-
-    def _check(self, X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        X = np.asarray(X, dtype=float)
-        Y = np.asarray(Y, dtype=float)
-        n_f = self.model.spec.n_features
-        if X.ndim != 2 or X.shape[1] != n_f:
-            raise DatasetError(f"batch features must have shape (N, {n_f}), got {X.shape}")
-        if Y.shape != (X.shape[0], 6):
-            raise DatasetError(f"batch labels must have shape ({X.shape[0]}, 6), got {Y.shape}")
-        if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
-            raise DatasetError("batch contains non-finite features or labels")
-        return X, Y
 
     # -- persistence ---------------------------------------------------------------------------
 

@@ -1,10 +1,13 @@
-"""What a continual learner reports: the metrics of each update and its replay memory."""
+"""What a continual learner takes and reports: a checked batch, the metrics of each update
+and its replay memory."""
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
 import numpy as np
+
+from kinematics.errors import DatasetError
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -43,3 +46,17 @@ class Memory:
 
     def __len__(self) -> int:
         return int(self.x.shape[0])
+
+
+def checked_batch(X: np.ndarray, Y: np.ndarray, n_features: int) -> tuple[np.ndarray, np.ndarray]:
+    """A batch's features ``(N, n_features)`` and labels ``(N, 6)`` as float arrays, or a
+    DatasetError naming what is wrong with them."""
+    X = np.asarray(X, dtype=float)
+    Y = np.asarray(Y, dtype=float)
+    if X.ndim != 2 or X.shape[1] != n_features:
+        raise DatasetError(f"batch features must have shape (N, {n_features}), got {X.shape}")
+    if Y.shape != (X.shape[0], 6):
+        raise DatasetError(f"batch labels must have shape ({X.shape[0]}, 6), got {Y.shape}")
+    if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
+        raise DatasetError("batch contains non-finite features or labels")
+    return X, Y
