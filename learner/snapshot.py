@@ -157,7 +157,7 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
             base=_base_from_meta(meta.get("base"), tensors),
             residual_gain=float(meta.get("residual_gain", 1.0)),
             envelope=_envelope(tensors, spec),
-            unverified=str(meta.get("unverified", "")),
+            unverified=str(meta.get("unverified") or ""),
         )
         state = {k[len("net.") :]: v for k, v in tensors.items() if k.startswith("net.")}
         model.net.load_state_dict(state, strict=True)
