@@ -30,7 +30,7 @@ from kinematics.dataset import read_dataset
 from learner.base import make_base
 from learner.config import DEFAULT_BASE, ModelConfig, TrainConfig
 from learner.features import temperature_readings
-from learner.metrics import accuracy_report, past_envelope
+from learner.metrics import accuracy_report, trust
 from learner.model import ErrorModel
 from learner.workflow import Prepared, prepare
 from sim_sources.unseen import UnseenSpec, write_unseen
@@ -44,16 +44,14 @@ EPISTEMIC_LIMIT_MM = CompensationConfig().epistemic_limit_mm
 def trust_report(model: ErrorModel, X: np.ndarray, Y: np.ndarray) -> dict:
     """Accuracy of all points and of those compensation would trust (mm, shares)."""
     everything = accuracy_report(model, X, Y)
-    outside = past_envelope(model, X)
-    epistemic = np.sqrt(model.predict(X).epistemic()[:, :3]).max(axis=1) * 1e3
-    over = epistemic > EPISTEMIC_LIMIT_MM
-    trusted = ~(outside | over)
+    flags = trust(model, X, EPISTEMIC_LIMIT_MM)
+    trusted = ~flags.untrusted
     out = {
         "n": len(X),
         "mean_mm": everything.mean_mm,
         "coverage_90": everything.coverage_90,
-        "outside_envelope": float(outside.mean()),
-        "over_epistemic_limit": float(over.mean()),
+        "outside_envelope": float(flags.past_envelope.mean()),
+        "over_epistemic_limit": float(flags.over_epistemic_limit.mean()),
         "untrusted": float(1.0 - trusted.mean()),
         "trusted_mean_mm": float("nan"),
         "trusted_coverage_90": float("nan"),

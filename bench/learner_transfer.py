@@ -40,7 +40,7 @@ from learner.config import (
     TrainConfig,
 )
 from learner.continual import load_learner
-from learner.metrics import accuracy_report, past_envelope
+from learner.metrics import accuracy_report, trust
 from learner.workflow import prepare, train_on_dataset
 from stream.compensation import CompensationConfig
 from stream.reports.learner import write_trained
@@ -100,9 +100,8 @@ def transfer(
         epi = epi_std.mean()
         lo, hi = ev.interval(0.9)
         inside = (Yte[:, :3] >= lo[:, :3]) & (Yte[:, :3] <= hi[:, :3])
-        over_limit = epi_std.max(axis=1) * 1e3 > EPISTEMIC_LIMIT_MM
-        past = past_envelope(learner.model, Xte)
-        untrusted = over_limit | past | bool(learner.model.unverified)
+        flags = trust(learner.model, Xte, EPISTEMIC_LIMIT_MM)
+        untrusted = flags.untrusted
         rows.append(
             {
                 "k": k,
@@ -114,8 +113,8 @@ def transfer(
                 "max_mm": r.max_mm,
                 "coverage_90": r.coverage_90,
                 "epistemic_ratio": float(epi / epi_src),
-                "over_epistemic_limit_share": float(over_limit.mean()),
-                "outside_envelope_share": float(past.mean()),
+                "over_epistemic_limit_share": float(flags.over_epistemic_limit.mean()),
+                "outside_envelope_share": float(flags.past_envelope.mean()),
                 "untrusted_share": float(untrusted.mean()),
                 "coverage_90_trusted": float(inside[~untrusted].mean())
                 if (~untrusted).any()

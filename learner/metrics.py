@@ -101,6 +101,29 @@ def past_envelope(
     return outside(model.envelope, X[:, : model.spec.n_joints], temps, margin_deg, margin_k)
 
 
+@dataclass(frozen=True)
+class Trust:
+    """Per row of ``X``, what compensation flags (:mod:`stream.compensation_guard`): the
+    epistemic std of a position component over its limit (``epistemic``), a joint or a
+    thermometer past the envelope (``envelope``), and the whole model when its day has not
+    checked its intervals (``unverified``)."""
+
+    over_epistemic_limit: np.ndarray
+    past_envelope: np.ndarray
+    unverified: bool
+
+    @property
+    def untrusted(self) -> np.ndarray:
+        """Rows compensation would answer ``trusted: false`` (bool ``(N,)``)."""
+        return self.over_epistemic_limit | self.past_envelope | self.unverified
+
+
+def trust(model: ErrorModel, X: np.ndarray, epistemic_limit_mm: float) -> Trust:
+    """What compensation would flag at raw features ``X`` with its ``epistemic_limit_mm`` (mm)."""
+    epistemic_mm = np.sqrt(model.predict(X).epistemic()[:, :3]).max(axis=1) * 1e3
+    return Trust(epistemic_mm > epistemic_limit_mm, past_envelope(model, X), bool(model.unverified))
+
+
 def envelope_report(
     model: ErrorModel, X: np.ndarray, Y: np.ndarray, margin_deg: float = MARGIN_DEG
 ) -> dict:

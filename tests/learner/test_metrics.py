@@ -3,7 +3,7 @@ import pytest
 
 from learner.config import ModelConfig, TrainConfig
 from learner.features import FeatureSpec
-from learner.metrics import ARCMIN_PER_RAD, AccuracyReport, accuracy_report
+from learner.metrics import ARCMIN_PER_RAD, AccuracyReport, accuracy_report, trust
 from learner.model import ErrorModel
 
 SPEC = FeatureSpec(names=("q1",), low=np.array([-1.0]), high=np.array([1.0]))
@@ -53,3 +53,20 @@ def test_nll_is_in_mm(fitted):
     r = accuracy_report(m, X, Y)
     nll_m = m.predict(X).nll(Y)[:, :3].mean()
     assert r.nll == pytest.approx(nll_m + np.log(1e3))
+
+
+def test_trust_flags_rows_as_compensation_does(fitted):
+    """Over the epistemic limit, past the angles trained on, or every row of an unverified
+    model: each flag alone makes a row untrusted."""
+    m, X, _ = fitted
+    assert not trust(m, X, epistemic_limit_mm=1e3).untrusted.any()
+    tight = trust(m, X, epistemic_limit_mm=0.0)
+    assert tight.over_epistemic_limit.all() and not tight.past_envelope.any()
+    far = trust(m, X + 3.0, epistemic_limit_mm=1e3)  # q1 beyond -1..1 rad by 2 rad or more
+    assert far.past_envelope.all() and far.untrusted.all()
+    m.unverified = "the frames moved on this day (30 points)"
+    try:
+        flags = trust(m, X, epistemic_limit_mm=1e3)
+    finally:
+        m.unverified = ""
+    assert flags.unverified and flags.untrusted.all() and not flags.past_envelope.any()
