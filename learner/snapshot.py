@@ -157,7 +157,7 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
             base=_base_from_meta(meta.get("base"), tensors),
             residual_gain=float(meta.get("residual_gain", 1.0)),
             envelope=_envelope(tensors, spec),
-            unverified=str(meta.get("unverified") or ""),
+            unverified=_unverified(meta.get("unverified")),
         )
         state = {k[len("net.") :]: v for k, v in tensors.items() if k.startswith("net.")}
         model.net.load_state_dict(state, strict=True)
@@ -168,6 +168,14 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
     model.metrics = dict(meta.get("metrics", {}))
     model.net.eval()
     return model
+
+
+def _unverified(value: object) -> str:
+    """The ``unverified`` reason of the metadata: absent or null is verified (""); anything but
+    a string is a SnapshotError, not a reason."""
+    if value is None or isinstance(value, str):
+        return value or ""
+    raise SnapshotError(f"snapshot unverified must be a string, got {type(value).__name__}")
 
 
 def _envelope_tensors(envelope: Envelope, spec: FeatureSpec) -> dict[str, torch.Tensor]:

@@ -138,3 +138,35 @@ def test_a_snapshot_from_before_the_variance_power_goes_on_with_the_plain_nll(tr
     back = snapshot_from_bytes(st_save(st_load(data), metadata={"robocal": json.dumps(meta)}))
     assert back.train_cfg.nll_variance_power == 0.0  # as it was trained
     np.testing.assert_array_equal(back.predict(X).gamma, m.predict(X).gamma)
+
+
+@pytest.mark.parametrize(
+    ("value", "error"),
+    [
+        ("the frames moved on this day (30 points)", None),
+        (None, None),
+        ({"a": [1]}, "dict"),
+        (12, "int"),
+    ],
+)
+def test_unverified_is_a_reason_or_nothing(trained, value, error):
+    """A snapshot's ``unverified``: a string is the reason, null or absent is verified, anything
+    else is a one-line SnapshotError (not a reason that reads ``{'a': [1]}``)."""
+    import json
+
+    from safetensors.torch import load as st_load
+    from safetensors.torch import save as st_save
+
+    m, _ = trained
+    data = snapshot_to_bytes(m)
+    meta = snapshot_meta(data)
+    meta["unverified"] = value
+    blob = st_save(st_load(data), metadata={"robocal": json.dumps(meta)})
+    if error is None:
+        assert snapshot_from_bytes(blob).unverified == (value or "")
+    else:
+        with pytest.raises(SnapshotError, match=f"unverified must be a string, got {error}"):
+            snapshot_from_bytes(blob)
+    del meta["unverified"]
+    old = st_save(st_load(data), metadata={"robocal": json.dumps(meta)})
+    assert snapshot_from_bytes(old).unverified == ""
