@@ -15,12 +15,14 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
+from safetensors.torch import load as st_load
+from safetensors.torch import save as st_save
 
 from kinematics.description import load_description
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from learner.features import feature_spec
 from learner.model import ErrorModel
-from learner.snapshot import snapshot_to_bytes
+from learner.snapshot import snapshot_meta, snapshot_to_bytes
 from sim_sources.cell import simulate
 from sim_sources.scenarios import get_scenario
 from sim_sources.streaming import StreamingConfig, cell_samples
@@ -154,13 +156,16 @@ def templates(ds, model_payload) -> dict:
 
 def forged_models(genuine: bytes, robot: str) -> list[bytes]:
     """Foreign and forged snapshots: a UR10 model under this robot's name, the genuine snapshot
-    with an implausible version, a wrong robot, truncated and random bytes."""
+    with an implausible version, a wrong robot or a nested ``unverified``, truncated and random
+    bytes."""
     header, snap = decode_model(genuine)
     ur10 = load_description("ur10")
     foreign = ErrorModel.create(
         feature_spec(ur10, 0, False), ModelConfig(hidden_layers=1, neurons=8), TrainConfig(), 0
     )
     ur10_snap = snapshot_to_bytes(foreign, {"model_version": header.model_version + 1})
+    meta = snapshot_meta(snap) | {"unverified": {"nested": [1, {"deeper": None}]}}
+    odd_snap = st_save(st_load(snap), metadata={"robocal": json.dumps(meta)})
 
     def framed(snapshot, version, n_seen, name=robot):
         return encode_model(
@@ -172,6 +177,7 @@ def forged_models(genuine: bytes, robot: str) -> list[bytes]:
         framed(snap, 10**9, 10**9 + 5),
         framed(snap, 2**53, 2**53),
         framed(snap, header.model_version + 1, 10_000, name="ur10"),
+        framed(odd_snap, header.model_version + 1, 10_000),
         framed(snap[: len(snap) // 2], header.model_version + 1, 10_000),
         framed(b"\x00" * 64, header.model_version + 1, 10_000),
         genuine[:20],
