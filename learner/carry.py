@@ -129,9 +129,10 @@ def carried_frames(
     is_moved = shift > MOVE_EVIDENCE * rms
     if not is_moved and prior_m != moved_prior_m:
         moved = reidentify_frames(base, spec, X, Y, residual=residual, prior_m=prior_m)
+    verdict, side = ("moved", "over") if is_moved else ("held near the old ones", "under")
     note = (
-        f"frames {'moved' if is_moved else 'held'} on {len(X)} new points (a free move of "
-        f"{1e3 * shift:.3f} mm against {1e3 * rms:.3f} mm left)"
+        f"frames {verdict} on {len(X)} new points (a free move of {1e3 * shift:.3f} mm against "
+        f"{1e3 * rms:.3f} mm left, {side} the {MOVE_EVIDENCE:g} x that shows a move)"
     )
     return replace(moved, note=f"{base.note}; {note}" if base.note else note), is_moved
 

@@ -289,9 +289,11 @@ def test_the_carry_follows_a_moved_tracker_and_holds_the_frames_of_an_unmoved_on
     same_day = _position_mm(p.Y[200:] - base.error(p.spec, p.X[200:], nominal))
     note, error = carried(Y2)
     assert "frames moved on 30 new points" in note and stale > 1.0
+    assert "over the 5 x that shows a move" in note
     assert error < 1.3 * same_day
     note, error = carried(p.Y)
-    assert "frames held" in note and error < 1.05 * same_day
+    assert "frames held near the old ones on 30 new points" in note
+    assert "under the 5 x that shows a move" in note and error < 1.05 * same_day
     note, error = carried(Y2, frame_prior_mm=1e-4, moved_frame_prior_mm=1e-4)
     assert "frames held" in note and error > 0.8 * stale
     with pytest.raises(ConfigError, match="moved_frame_prior_mm"):
