@@ -9,17 +9,22 @@ series) with 90 % coverage and how much wider the epistemic spread is there than
 own test points, and the share of test points the compensation service would flag as untrusted
 (epistemic std above its limit, or a joint or thermometer past the angles or temperatures the
 model was trained on, ``learner.envelope``: both shares; or all of them while the model is
-``unverified``, a carry that took the frames as moved) with the 90 % coverage on the trusted
-ones. Both directions, ``--seeds`` seeds. ``--cache DIR`` keeps the trained source
+``unverified``: a carry that took the frames as moved, or whose first points needed intervals
+``learner.carry.MISS_EVIDENCE`` times wider than the model came with) with the 90 % coverage on
+the trusted ones. Both directions, ``--seeds`` seeds. ``--cache DIR`` keeps the trained source
 models (by series, base, seed and epochs) for the next run. ``--base-a`` / ``--base-b`` are the
 source models' bases (a kind or a model file, e.g. ``robocal gap``'s), ``--frame-prior-mm`` /
 ``--moved-frame-prior-mm`` the carry's frame priors (equal: no choice; ``ContinualConfig``);
 ``frames_moved`` is the share of seeds whose carry took the frames as moved. ``--order spread``
 draws the k points at random from the new series instead (seeded): a day that starts with a
-reference program over the workspace.
+reference program over the workspace. ``--days FILE`` carries within one series instead: its
+points up to its first pause of more than ``--gap-h`` hours (recorded order; UR10 Series A:
+its first 5,252 points, 18 h, then a 6.5 h pause) and the rest, both ways: another day of the
+same cell, the tracker not set up anew.
 
 
     .venv/bin/python bench/learner_transfer.py --a /tmp/a.parquet --b /tmp/b.parquet --seeds 0 1 2
+    .venv/bin/python bench/learner_transfer.py --days /tmp/a.parquet --seeds 0 1 2
 """
 
 import argparse
@@ -31,7 +36,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from kinematics.dataset import read_dataset
+from kinematics.dataset import read_dataset, write_dataset
 from learner.config import (
     DEFAULT_BASE,
     FRAME_PRIOR_MM,
@@ -125,6 +130,28 @@ def transfer(
     return {"source_test_mm": source_mm, "steps": rows}
 
 
+def split_days(path: str, folder: Path, gap_h: float) -> tuple[str, str]:
+    """The series at ``path`` cut at its first pause of more than ``gap_h`` hours between two
+    points in recorded order, written to ``folder``: the day before, and the days after."""
+    ds = read_dataset(path)
+    pauses = np.flatnonzero(np.diff(ds.table["t"].to_numpy(float)) > gap_h * 3600.0)
+    if not pauses.size:
+        raise SystemExit(f"{path}: no pause of more than {gap_h:g} h between two points")
+    cut, stem = pauses[0] + 1, Path(path).stem
+    parts = (np.arange(cut), np.arange(cut, len(ds)))
+    paths = [folder / f"{stem}_{name}.parquet" for name in ("before", "after")]
+    for rows, out in zip(parts, paths, strict=True):
+        write_dataset(ds.subset(rows), out)
+    return str(paths[0]), str(paths[1])
+
+
+def _mean(values: list[float]) -> float:
+    """The mean over seeds of what they measured (NaN where none did: no frames-only error at
+    k = 0, no trusted point left)."""
+    v = np.asarray(values, dtype=float)
+    return float(v[~np.isnan(v)].mean()) if (~np.isnan(v)).any() else float("nan")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--a", default="/tmp/a.parquet")
@@ -137,6 +164,8 @@ def main() -> None:
     ap.add_argument("--frame-prior-mm", type=float, default=FRAME_PRIOR_MM)
     ap.add_argument("--moved-frame-prior-mm", type=float, default=MOVED_FRAME_PRIOR_MM)
     ap.add_argument("--order", choices=("recorded", "spread"), default="recorded")
+    ap.add_argument("--days", help="one series: carry its first day to the rest and back")
+    ap.add_argument("--gap-h", type=float, default=4.0, help="--days: the pause that ends a day")
     args = ap.parse_args()
     torch.set_num_threads(1)
     out = {}
@@ -144,17 +173,15 @@ def main() -> None:
         folder = Path(args.cache or tmp)
         folder.mkdir(parents=True, exist_ok=True)
         priors = args.frame_prior_mm, args.moved_frame_prior_mm
-        directions = {"A->B": (args.a, args.b, args.base_a), "B->A": (args.b, args.a, args.base_b)}
+        a, b = split_days(args.days, folder, args.gap_h) if args.days else (args.a, args.b)
+        directions = {"A->B": (a, b, args.base_a), "B->A": (b, a, args.base_b)}
         for name, (src, dst, base) in directions.items():
             runs = [
                 transfer(src, dst, s, args.max_epochs, folder, base, priors, args.order)
                 for s in args.seeds
             ]
             steps = [
-                {
-                    key: float(np.nanmean([r["steps"][i][key] for r in runs]))
-                    for key in runs[0]["steps"][i]
-                }
+                {key: _mean([r["steps"][i][key] for r in runs]) for key in runs[0]["steps"][i]}
                 for i in range(len(STEPS))
             ]
             out[name] = {

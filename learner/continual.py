@@ -33,7 +33,14 @@ import torch
 
 from kinematics.model import RobotModel
 from learner.base import PhysicsBase, identify_base, nominal_base
-from learner.carry import CarriedDay, carried_frames, held_out_labels
+from learner.carry import (
+    MIN_DAY_POINTS,
+    CarriedDay,
+    carried_frames,
+    held_out_labels,
+    scale_needed,
+    unverified,
+)
 from learner.config import ContinualConfig
 from learner.conformal import adapt_log_scale
 from learner.continual_base import REFINED, doubled, due, memory_base, refined_base, status
@@ -51,16 +58,6 @@ from learner.quarantine import QuarantineState, holdout_mm, model_residuals, scr
 from learner.replay import replay_strategy
 from learner.snapshot import load_snapshot, snapshot_from_bytes, snapshot_to_bytes
 from learner.training import Trainer, TrainReport
-
-#: Held-out points of a new day (since :meth:`ContinualLearner.carry`) from which the carried
-#: network's gain and the interval scale are re-fitted after each update (a scale fitted on
-#: UR10 B's first 10 held-out points covered 68-82 % of the series).
-MIN_DAY_POINTS = 20
-#: Why a day whose frames moved is not trusted until :data:`MIN_DAY_POINTS` of it are held out.
-_UNVERIFIED = (
-    f"the frames moved on this day ({{n}} points); its intervals are checked once "
-    f"{MIN_DAY_POINTS} of its points are held out"
-)
 
 
 class ContinualLearner:
@@ -252,23 +249,27 @@ class ContinualLearner:
         (:func:`learner.carry.carried_frames`), empty the held-out set (another day's) and fit the
         carried network's gain on these points (:meth:`ErrorModel.weigh_residual`); returns it.
         Gain and scale are re-fitted on the day's held-out points once :data:`MIN_DAY_POINTS`
-        are there; until then the model's scale stands, or if the frames moved, no narrower than
-        these points show to frames fitted without them (:func:`learner.carry.held_out_labels`)
-        and :attr:`~ErrorModel.unverified` (compensation trusts none of it: on UR10 B→A that
-        scale covered 70-76 % of what it would trust). The day's trained points are kept to fit
-        its frames again (:class:`CarriedDay`)."""
+        are there. Until then the model's scale stands, unless the frames moved or these points
+        need a far wider one than it came with (:func:`learner.carry.unverified`): then it is no
+        narrower than they show (to frames fitted without them where the frames moved:
+        :func:`learner.carry.held_out_labels`), and :attr:`~ErrorModel.unverified` (compensation
+        trusts none of it: on UR10 B→A that scale covered 70-76 % of what it would trust). The
+        day's trained points are kept to fit its frames again (:class:`CarriedDay`)."""
         X, Y = checked_batch(X, Y, self.model.spec.n_features)
+        needed, miss = scale_needed(self.model, X, Y)
         spec, residual, priors = self.model.spec, self.model.residual(X), self._frame_priors
         old, (base, moved) = self.base, carried_frames(self.base, spec, X, Y, residual, *priors)
         self.day = CarriedDay.start(old, len(X), spec.n_features)
         self.rebase(base)
         self._cal_x, self._cal_y = self._cal_x[:0], self._cal_y[:0]
         self.trained.residual_gain = self.model.weigh_residual(X, Y)
-        scale = self.model.interval_scale.copy()
-        self.model.unverified = _UNVERIFIED.format(n=len(X)) if moved else ""
+        scale, self.model.unverified = self.model.interval_scale.copy(), unverified(moved, miss, X)
         if moved:
-            held = held_out_labels(old, spec, X, Y, residual, priors[1], base)
-            self.model.interval_scale = scale = np.maximum(scale, self.model.calibrate(X, held))
+            needed = self.model.calibrate(
+                X, held_out_labels(old, spec, X, Y, residual, priors[1], base)
+            )
+        if self.model.unverified:
+            self.model.interval_scale = scale = np.maximum(scale, needed)
         self.day_scale = scale / np.exp(self.aci_log_scale)
         return self.trained.residual_gain
 

@@ -9,7 +9,7 @@ The physics base travels too (kind, note, description TOML and effects in the JS
 the joint angles and temperatures it was trained on (``joint_envelope``,
 ``temperature_envelope``, :mod:`learner.envelope`; absent in snapshots written before they
 existed, which compensation then does not check), and why its intervals are not verified yet
-(``unverified``, a carry's moved frames; absent: verified). Version
+(``unverified``, a carry's moved frames or missed intervals; absent: verified). Version
 1 snapshots (before input encodings and members existed) load as ``encoding = "minmax"``, one
 member; snapshots without a base load on the nominal.
 

@@ -10,7 +10,8 @@ more than ``max_residual_m``), ``corrected_limits`` (the corrected command leave
 ``envelope_margin_deg`` past the angles the model was trained on, or a thermometer more than
 ``envelope_margin_k`` past the temperatures, :mod:`learner.envelope`: its base and network
 extrapolate there and its intervals do not know it), ``unverified`` (a model carried into a
-day whose frames moved, whose intervals its own held-out points have not yet checked:
+day whose frames moved or whose first points its intervals missed, and which its own held-out
+points have not yet checked:
 :attr:`learner.model.ErrorModel.unverified`). A refusal before solving
 answers with the uncorrected command and the error predicted there (zeros when even that fails).
 
