@@ -156,8 +156,8 @@ MISS_EVIDENCE = 2.0
 MIN_DAY_POINTS = 20
 
 
-def unverified(moved: bool, miss: float, X: np.ndarray) -> str:
-    """Why a day carried from its first points ``X`` is not trusted until :data:`MIN_DAY_POINTS`
+def unverified(moved: bool, miss: float, n: int) -> str:
+    """Why a day carried from its first ``n`` points is not trusted until :data:`MIN_DAY_POINTS`
     of it are held out ("" where it is): its frames moved, or the intervals its model came with
     were more than :data:`MISS_EVIDENCE` times too narrow there (``miss``)."""
     if not moved and miss <= MISS_EVIDENCE:
@@ -166,7 +166,7 @@ def unverified(moved: bool, miss: float, X: np.ndarray) -> str:
         "the frames moved" if moved else f"the intervals it came with were {miss:.1f} x too narrow"
     )
     return (
-        f"{why} on this day ({len(X)} points); its intervals are checked once "
+        f"{why} on this day ({n} points); its intervals are checked once "
         f"{MIN_DAY_POINTS} of its points are held out"
     )
 

@@ -263,7 +263,8 @@ class ContinualLearner:
         self.rebase(base)
         self._cal_x, self._cal_y = self._cal_x[:0], self._cal_y[:0]
         self.trained.residual_gain = self.model.weigh_residual(X, Y)
-        scale, self.model.unverified = self.model.interval_scale.copy(), unverified(moved, miss, X)
+        scale = self.model.interval_scale.copy()
+        self.model.unverified = unverified(moved, miss, len(X))
         if moved:
             needed = self.model.calibrate(
                 X, held_out_labels(old, spec, X, Y, residual, priors[1], base)
