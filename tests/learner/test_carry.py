@@ -7,6 +7,7 @@ import pytest
 from learner.carry import MISS_EVIDENCE
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from learner.continual import MIN_DAY_POINTS, ContinualLearner, state_from_bytes, state_to_bytes
+from learner.metrics import accuracy_report
 from learner.model import ErrorModel
 from learner.snapshot import snapshot_from_bytes, snapshot_to_bytes
 from learner.workflow import prepare
@@ -79,11 +80,6 @@ def test_a_carried_learner_weighs_its_network_then_learns_the_day_back(learned):
     assert restarted.day_scale is not None and restarted.model.residual_gain == gains[-1]
 
 
-def _coverage(model, X, Y):
-    lo, hi = model.predict(X).interval(0.9)
-    return float(((Y[:, :3] >= lo[:, :3]) & (Y[:, :3] <= hi[:, :3])).mean())
-
-
 def test_a_day_whose_points_the_intervals_miss_is_widened_and_unverified(learned):
     """The frames held, but on this day a third of what the network learned is gone: the
     intervals the model came with miss the day's first points (44 % covered), so the carry
@@ -96,7 +92,7 @@ def test_a_day_whose_points_the_intervals_miss_is_widened_and_unverified(learned
     assert same.model.unverified == "" and "frames held" in same.base.note
     np.testing.assert_array_equal(same.day_scale, model.interval_scale)
     day = Y - 0.3 * model.residual(X)
-    assert _coverage(model, X[25:], day[25:]) < 0.5
+    assert accuracy_report(model, X[25:], day[25:]).coverage_90 < 0.5
     other = ContinualLearner(_copy(model), ContinualConfig())
     other.carry(X[:25], day[:25])
     assert "frames held" in other.base.note
@@ -104,7 +100,7 @@ def test_a_day_whose_points_the_intervals_miss_is_widened_and_unverified(learned
     assert "x too narrow on this day (25 points)" in other.model.unverified
     widened = other.model.interval_scale / model.interval_scale
     assert widened.min() >= 1.0 - 1e-12 and np.exp(np.log(widened[:3]).mean()) > MISS_EVIDENCE
-    assert _coverage(other.model, X[25:], day[25:]) > 0.85
+    assert accuracy_report(other.model, X[25:], day[25:]).coverage_90 > 0.85
     state = state_from_bytes(state_to_bytes(other.state_dict()))
     np.testing.assert_allclose(state["day_scale"], other.day_scale)
 
