@@ -7,10 +7,12 @@ When a model goes on in another day or cell (``robocal continual --from``, the d
 (:func:`carried_frames`); the carry calibrates its intervals on labels that frames fitted
 without each point's fold leave (:func:`held_out_labels`). Where the frames held, the day's
 first points still check the intervals the model came with (:func:`scale_needed`): another
-day of the same cell can miss them by far. The fitted frames keep their
-posterior spread (:func:`frame_sigma_points`, ``PhysicsBase.frame_sigma``): frames fixed by
-ten points of one corner are poorly known far from it, and the intervals there say so. As the
-day's points keep coming (:class:`CarriedDay`), its frames are fitted again on all of them.
+day of the same cell can miss them by far. A carry starts the day with its intervals as wide
+as its training days' own last hours showed a later day needs (:func:`drift_scale`). The
+fitted frames keep their posterior spread (:func:`frame_sigma_points`,
+``PhysicsBase.frame_sigma``): frames fixed by ten points of one corner are poorly known far
+from it, and the intervals there say so. As the day's points keep coming
+(:class:`CarriedDay`), its frames are fitted again on all of them.
 """
 
 from __future__ import annotations
@@ -140,13 +142,14 @@ def carried_frames(
     return replace(moved, note=f"{base.note}; {note}" if base.note else note), is_moved
 
 
-#: How many times its own interval scale a carry whose frames held needs on the day's first
-#: points (the scale :meth:`~learner.model.ErrorModel.calibrate` fits there, geometric mean of
-#: x, y, z) before the day is taken as one its model has not seen. UR10 Series A's first 5,252
-#: points carried to its later days, the same tracker: 2.0-2.9 x (37-57 % of the first points
-#: missed; 59 % of the day covered); the other way 1.3-1.8 x (58 % covered), which the first
-#: points cannot tell from a random half of a random arm's campaign carried to the other half:
-#: 0.8-1.5 x, 86-91 % covered (BENCHMARKS.md, "Another day of the same cell").
+#: How many times the scale a carry whose frames held starts with (its own times its
+#: ``drift_scale``) the day's first points need (the scale
+#: :meth:`~learner.model.ErrorModel.calibrate` fits there, geometric mean of x, y, z) before the
+#: day is taken as one its model has not seen. Measured against its own scale alone: UR10
+#: Series A's first 5,252 points carried to its later days, the same tracker, 2.0-2.9 x (59 % of
+#: the day covered); the other way 1.3-1.8 x (58 % covered), which the first points cannot tell
+#: from a random half of a random arm's campaign carried to the other half: 0.8-1.5 x, 86-91 %
+#: covered (BENCHMARKS.md, "Another day of the same cell"); the drift now covers those days.
 MISS_EVIDENCE = 2.0
 
 
@@ -180,6 +183,30 @@ def scale_needed(model: ErrorModel, X: np.ndarray, Y: np.ndarray) -> tuple[np.nd
     finally:
         model.interval_scale = own
     return needed, float(np.exp(np.mean(np.log(needed[:3] / own[:3]))))
+
+
+#: Fewest last points in time that measure a model's drift (:func:`drift_scale`).
+MIN_DRIFT_POINTS = 50
+
+
+def drift_scale(model: ErrorModel, X: np.ndarray, Y: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """How many times wider, per component (never narrower), ``model``'s intervals must be on
+    points recorded after those it was trained on, ``X, Y`` at times ``t`` (s): a
+    :meth:`~ErrorModel.clone` trained on all but the last ``train_cfg.drift_fraction`` of them
+    in time, its scale calibrated as ``fit`` does, over the scale those last points need from
+    it. A scale calibrated on a random tenth of the points knows how wrong the model is between
+    them, not on a later day: on UR10 Series A's first day this is 3.1-3.7 x, and its later
+    days need 2.5-2.7 x (BENCHMARKS.md, "Drift measured in training"). Ones where fewer than
+    :data:`MIN_DRIFT_POINTS` are last or the clock never moves."""
+    t = np.asarray(t, dtype=float)
+    n_last = round(model.train_cfg.drift_fraction * len(t))
+    if n_last < MIN_DRIFT_POINTS or not np.ptp(t) > 0:
+        return np.ones(Y.shape[1])
+    order = np.argsort(t, kind="stable")
+    probe = model.clone()
+    probe.fit(X[order[:-n_last]], Y[order[:-n_last]])
+    needed, _ = scale_needed(probe, X[order[-n_last:]], Y[order[-n_last:]])
+    return np.maximum(needed / probe.interval_scale, 1.0)
 
 
 def held_out_labels(

@@ -128,7 +128,10 @@ class TrainConfig:
     ``lam`` weighs the evidence regulariser; ``nll_variance_power`` weighs each point's NLL by
     its predicted variance to that power (β-NLL, :mod:`learner.evidential`; 0: the NLL as
     DESIGN.md writes it). ``val_fraction`` is split off when no validation set is given (0
-    trains all ``max_epochs`` on everything and keeps the last weights)."""
+    trains all ``max_epochs`` on everything and keeps the last weights). ``drift_fraction``:
+    the last part of the training points in time that batch training holds out once more to
+    measure how much wider the intervals must be on a later day (``learner.carry.drift_scale``;
+    0: not measured)."""
 
     batch_size: int = 64
     lr: float = 3e-3
@@ -139,6 +142,7 @@ class TrainConfig:
     lam: float = 0.01
     nll_variance_power: float = 0.25
     val_fraction: float = 0.1
+    drift_fraction: float = 0.1
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -160,6 +164,10 @@ class TrainConfig:
         _check(
             0.0 <= self.val_fraction < 1.0,
             f"train.val_fraction must be in [0, 1), got {self.val_fraction}",
+        )
+        _check(
+            0.0 <= self.drift_fraction < 1.0,
+            f"train.drift_fraction must be in [0, 1), got {self.drift_fraction}",
         )
         _check(isinstance(self.seed, int), f"train.seed must be an int, got {self.seed!r}")
 

@@ -249,28 +249,30 @@ class ContinualLearner:
         (:func:`learner.carry.carried_frames`), empty the held-out set (another day's) and fit the
         carried network's gain on these points (:meth:`ErrorModel.weigh_residual`); returns it.
         Gain and scale are re-fitted on the day's held-out points once :data:`MIN_DAY_POINTS`
-        are there. Until then the model's scale stands, unless the frames moved or these points
-        need a far wider one than it came with (:func:`learner.carry.unverified`): then it is no
+        are there. Until then the scale is the model's times its ``drift_scale``, or where the
+        frames moved or these points need a far wider one (:func:`learner.carry.unverified`) no
         narrower than they show (to frames fitted without them where the frames moved:
         :func:`learner.carry.held_out_labels`), and :attr:`~ErrorModel.unverified` (compensation
-        trusts none of it: on UR10 B→A that scale covered 70-76 % of what it would trust). The
-        day's trained points are kept to fit its frames again (:class:`CarriedDay`)."""
+        trusts none of it). Its points are kept to fit its frames again (:class:`CarriedDay`)."""
         X, Y = checked_batch(X, Y, self.model.spec.n_features)
         needed, miss = scale_needed(self.model, X, Y)
+        drift = self.model.drift_scale
         spec, residual, priors = self.model.spec, self.model.residual(X), self._frame_priors
         old, (base, moved) = self.base, carried_frames(self.base, spec, X, Y, residual, *priors)
         self.day = CarriedDay.start(old, len(X), spec.n_features)
         self.rebase(base)
         self._cal_x, self._cal_y = self._cal_x[:0], self._cal_y[:0]
         self.trained.residual_gain = self.model.weigh_residual(X, Y)
-        scale = self.model.interval_scale.copy()
+        scale = self.model.interval_scale * drift  # a later day, as its own last hours showed
+        miss /= float(np.exp(np.mean(np.log(drift[:3]))))
         self.model.unverified = unverified(moved, miss, len(X))
         if moved:
             needed = self.model.calibrate(
                 X, held_out_labels(old, spec, X, Y, residual, priors[1], base)
             )
         if self.model.unverified:
-            self.model.interval_scale = scale = np.maximum(scale, needed)
+            scale = np.maximum(scale, needed)
+        self.model.interval_scale = scale
         self.day_scale = scale / np.exp(self.aci_log_scale)
         return self.trained.residual_gain
 

@@ -80,6 +80,7 @@ class ErrorModel:
         residual_gain: float = 1.0,
         envelope: Envelope | None = None,
         unverified: str = "",
+        drift_scale: np.ndarray | None = None,
     ) -> None:
         self.spec = spec
         self.base = base
@@ -98,6 +99,10 @@ class ErrorModel:
         #: took the frames as moved, until the day's own held-out points have checked them
         #: (:meth:`learner.continual.ContinualLearner.carry`). Compensation flags it.
         self.unverified = unverified
+        #: How many times wider, per component, its intervals must be on a later day than its
+        #: own scale makes them, as its training days' last hours showed (ones: not measured;
+        #: :func:`learner.carry.drift_scale`). A carry into a new day starts with them so wide.
+        self.drift_scale = np.ones(N_LABELS) if drift_scale is None else np.asarray(drift_scale)
         self.net = EvidentialEnsemble(
             n_inputs=n_inputs(spec, model_cfg.encoding),
             hidden_layers=model_cfg.hidden_layers,

@@ -9,7 +9,8 @@ The physics base travels too (kind, note, description TOML and effects in the JS
 the joint angles and temperatures it was trained on (``joint_envelope``,
 ``temperature_envelope``, :mod:`learner.envelope`; absent in snapshots written before they
 existed, which compensation then does not check), and why its intervals are not verified yet
-(``unverified``, a carry's moved frames or missed intervals; absent: verified). Version
+(``unverified``, a carry's moved frames or missed intervals; absent: verified) and how much
+wider its intervals must be on a later day (``drift_scale``; absent: not measured). Version
 1 snapshots (before input encodings and members existed) load as ``encoding = "minmax"``, one
 member; snapshots without a base load on the nominal.
 
@@ -66,6 +67,7 @@ def snapshot_to_bytes(model: ErrorModel, extra_meta: dict | None = None) -> byte
     scalers = (model.spec.low, model.spec.high, mean, std, model.interval_scale)
     for key, value in zip(_SCALERS, scalers, strict=True):
         tensors[key] = torch.as_tensor(np.asarray(value, dtype=np.float64))
+    tensors["drift_scale"] = torch.as_tensor(np.asarray(model.drift_scale, dtype=np.float64))
     desc = model.spec.description
     if desc is not None:
         tensors["sensor_tool"] = torch.as_tensor(desc.tool)
@@ -158,6 +160,7 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
             residual_gain=float(meta.get("residual_gain", 1.0)),
             envelope=_envelope(tensors, spec),
             unverified=_unverified(meta.get("unverified")),
+            drift_scale=_drift_scale(tensors),
         )
         state = {k[len("net.") :]: v for k, v in tensors.items() if k.startswith("net.")}
         model.net.load_state_dict(state, strict=True)
@@ -168,6 +171,17 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
     model.metrics = dict(meta.get("metrics", {}))
     model.net.eval()
     return model
+
+
+def _drift_scale(tensors: dict) -> np.ndarray | None:
+    """The ``drift_scale`` tensor: absent is not measured (None); one positive factor per label
+    component, or a SnapshotError."""
+    if "drift_scale" not in tensors:
+        return None
+    scale = tensors["drift_scale"].numpy()
+    if scale.shape != (6,) or not np.all(np.isfinite(scale) & (scale > 0)):
+        raise SnapshotError(f"snapshot drift_scale must be 6 positive factors, got {scale}")
+    return scale
 
 
 def _unverified(value: object) -> str:

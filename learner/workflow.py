@@ -25,6 +25,7 @@ from learner.base import (
     make_base,
     nominal_base,
 )
+from learner.carry import drift_scale
 from learner.config import (
     SELECTED_BASE,
     ContinualConfig,
@@ -130,8 +131,9 @@ def train_on_dataset(
     on_epoch: Callable[[int, float], None] | None = None,
     base: str = SELECTED_BASE,
 ) -> TrainResult:
-    """Batch-train a model on ``base`` (identified on the training split) and report its test
-    accuracy; the result's learner remembers the worst-predicted training points. ``best``
+    """Batch-train a model on ``base`` (identified on the training split), measure how much
+    wider its intervals must be on a later day (:func:`~learner.carry.drift_scale`) and report
+    its test accuracy; the result's learner remembers the worst-predicted training points. ``best``
     (:data:`SELECTED_BASE`) trains one on the geometric and one on the gap base and keeps the
     gap one only where it predicts the validation points (those :meth:`ErrorModel.fit` held
     out) clearly better (:func:`best_on_validation`)."""
@@ -142,6 +144,8 @@ def train_on_dataset(
         model = _new_model(p, model_cfg, train_cfg, seed, physics)
         fits.append((model, model.fit(p.X[p.train], p.Y[p.train], on_epoch=on_epoch)))
     model, report = best_on_validation(fits, p.X[p.train], p.Y[p.train])
+    times = ds.table["t"].to_numpy(float)[train]
+    model.drift_scale = drift_scale(model, p.X[train], p.Y[train], times)
     test = accuracy_report(model, p.X[p.test], p.Y[p.test]) if len(p.test) else None
     model.metrics = {} if test is None else test.to_dict()
     learner = ContinualLearner(model, ContinualConfig(seed=seed))

@@ -56,6 +56,7 @@ class Train(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
+        import numpy as np
         from tqdm import tqdm
 
         from kinematics.dataset import read_dataset
@@ -86,10 +87,12 @@ class Train(Command):
             "n_train": result.n_train,
             "epochs": result.report.epochs,
             "n_weights": result.model.n_weights,
+            "drift_scale": [round(float(s), 3) for s in result.model.drift_scale],
         }
+        later = np.exp(np.log(result.model.drift_scale[:3]).mean())
         text = (
             f"model -> {args.out} ({result.n_train} points, {result.report.epochs} epochs, "
-            f"base {result.model.base_kind})"
+            f"base {result.model.base_kind}; a later day needs its intervals {later:.1f} x wider)"
         )
         return _emit_learned(result, out, text, args.json)
 

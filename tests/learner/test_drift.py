@@ -1,0 +1,88 @@
+"""How much wider a model's intervals must be on a later day (``learner.carry.drift_scale``):
+measured in batch training on the last hours of its own points, kept in its snapshot, and the
+width a carry starts a new day with."""
+
+import numpy as np
+import pytest
+
+from kinematics.errors import SnapshotError
+from learner.config import ContinualConfig, TrainConfig
+from learner.continual import ContinualLearner
+from learner.metrics import accuracy_report
+from learner.snapshot import snapshot_from_bytes, snapshot_to_bytes
+from learner.workflow import prepare, train_on_dataset
+from tests.learner.conftest import make_dataset
+
+DRIFT_M = 0.6e-3  # how far the robot's last points move, at most (m)
+
+
+def _drifting(ds):
+    """``ds`` whose last fifth in time moves as a link grows warm: up to 0.6 mm along x and z,
+    more the further the arm reaches out (its second joint's angle)."""
+    t = ds.table["t"].to_numpy(float)
+    late = np.clip((t - np.quantile(t, 0.8)) / np.ptp(t) * 5.0, 0.0, None)
+    reach = np.sin(ds.table["q2"].to_numpy(float))
+    table = ds.table.copy()
+    table["x"] += DRIFT_M * late * reach
+    table["z"] -= DRIFT_M * late * reach
+    return type(ds)(table=table, meta=ds.meta)
+
+
+@pytest.fixture(scope="module")
+def trained():
+    """The same small network trained on a steady robot and on one that drifts at the end."""
+    cfg = TrainConfig(max_epochs=150)
+    ds = make_dataset(600, seed=3)
+    return {
+        name: train_on_dataset(data, seed=0, train_cfg=cfg, base="geometric")
+        for name, data in (("steady", ds), ("drifting", _drifting(ds)))
+    }
+
+
+def _geo(scale):
+    return float(np.exp(np.log(scale[:3]).mean()))
+
+
+def test_training_measures_how_much_wider_a_later_day_needs_the_intervals(trained):
+    steady, drifting = trained["steady"].model, trained["drifting"].model
+    assert steady.drift_scale.shape == (6,) and steady.drift_scale.min() >= 1.0
+    assert _geo(steady.drift_scale) < 1.5
+    x, y, z = drifting.drift_scale[:3]
+    assert x > 2.0 and z > 2.0 and y < 1.5  # it moved along x and z, not y
+    again = snapshot_from_bytes(snapshot_to_bytes(drifting))
+    np.testing.assert_array_equal(again.drift_scale, drifting.drift_scale)
+
+
+def test_no_drift_is_measured_at_fraction_zero_or_on_a_clock_that_never_moves():
+    ds = make_dataset(300, seed=4)
+    off = train_on_dataset(ds, train_cfg=TrainConfig(max_epochs=20, drift_fraction=0.0))
+    np.testing.assert_array_equal(off.model.drift_scale, np.ones(6))
+    still = type(ds)(table=ds.table.assign(t=0.0), meta=ds.meta)
+    frozen = train_on_dataset(still, train_cfg=TrainConfig(max_epochs=20), base="geometric")
+    np.testing.assert_array_equal(frozen.model.drift_scale, np.ones(6))
+
+
+def test_a_carry_starts_the_day_as_wide_as_the_drift_says_and_trusts_it(trained):
+    """The drifting robot's model carried to points recorded after all it learned, and moved
+    as its last hours were: the intervals it came with cover too few, the drift-widened ones
+    enough, and the day is not marked unverified for misses the drift explains."""
+    result = trained["drifting"]
+    model = result.model
+    later = _drifting(make_dataset(600, seed=8))
+    p = prepare(later, test_fraction=0.0, spec=model.spec)
+    X, Y = p.X[480:], p.Y[480:]  # the last fifth: moved
+    assert accuracy_report(model, X[20:], Y[20:]).coverage_90 < 0.8
+    learner = ContinualLearner(snapshot_from_bytes(snapshot_to_bytes(model)), ContinualConfig())
+    learner.carry(X[:20], Y[:20])
+    np.testing.assert_allclose(
+        learner.model.interval_scale, model.interval_scale * model.drift_scale
+    )
+    assert learner.model.unverified == ""
+    assert accuracy_report(learner.model, X[20:], Y[20:]).coverage_90 > 0.85
+
+
+def test_a_snapshot_whose_drift_is_not_six_positive_factors_is_refused(trained):
+    bad = snapshot_from_bytes(snapshot_to_bytes(trained["steady"].model))
+    bad.drift_scale = np.array([1.0, 1.0, -2.0, 1.0, 1.0, 1.0])
+    with pytest.raises(SnapshotError, match="drift_scale must be 6 positive factors"):
+        snapshot_from_bytes(snapshot_to_bytes(bad))
