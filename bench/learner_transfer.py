@@ -10,7 +10,8 @@ own test points, and the share of test points the compensation service would fla
 (epistemic std above its limit, or a joint or thermometer past the angles or temperatures the
 model was trained on, ``learner.envelope``: both shares; or all of them while the model is
 ``unverified``: a carry that took the frames as moved, or whose first points needed intervals
-``learner.carry.MISS_EVIDENCE`` times wider than the model came with) with the 90 % coverage on
+``learner.carry.MISS_EVIDENCE`` times wider than it starts with, the model's scale times the
+``drift_scale`` its training measured) with the 90 % coverage on
 the trusted ones. Both directions, ``--seeds`` seeds. ``--cache DIR`` keeps the trained source
 models (by series, base, seed and epochs) for the next run. ``--base-a`` / ``--base-b`` are the
 source models' bases (a kind or a model file, e.g. ``robocal gap``'s), ``--frame-prior-mm`` /

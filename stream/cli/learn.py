@@ -52,6 +52,13 @@ class Train(Command):
         _add_split(parser)
         parser.add_argument("--out", required=True, help="model snapshot to write (.safetensors)")
         parser.add_argument("--max-epochs", type=int, default=TrainConfig().max_epochs)
+        parser.add_argument(
+            "--drift-fraction",
+            type=float,
+            default=TrainConfig().drift_fraction,
+            help="the last share of the training points in time that a second training holds "
+            "out to measure how much wider a later day needs the intervals (0: not measured)",
+        )
         add_base_argument(parser, SELECTED_BASE, (*BASE_KINDS, SELECTED_BASE))
         add_json_flag(parser)
 
@@ -64,7 +71,9 @@ class Train(Command):
         from stream.reports.learner import write_trained
 
         ds = read_dataset(args.data)
-        cfg = TrainConfig(seed=args.seed, max_epochs=args.max_epochs)
+        cfg = TrainConfig(
+            seed=args.seed, max_epochs=args.max_epochs, drift_fraction=args.drift_fraction
+        )
         with tqdm(total=cfg.max_epochs, desc="train", unit="epoch", file=sys.stderr) as bar:
 
             def progress(epoch: int, val_mse: float) -> None:

@@ -61,6 +61,22 @@ def test_train_then_evaluate(data_file, tmp_path, capsys):
     assert "unverified: the frames moved on this day (30 points)" in capsys.readouterr().out
 
 
+def test_train_measures_the_drift_a_later_day_needs_or_not_at_fraction_zero(
+    data_file, tmp_path, capsys
+):
+    model = tmp_path / "d.safetensors"
+    argv = ["train", "--data", str(data_file), "--out", str(model), "--max-epochs", "3"]
+    assert main([*argv, "--drift-fraction", "0.4", "--json"]) == 0  # 58 of 144 points last
+    drift = _json(capsys)["drift_scale"]
+    assert len(drift) == 6 and min(drift) >= 1.0
+    np.testing.assert_allclose(load_snapshot(model).drift_scale, drift, atol=5e-4)
+    assert main([*argv, "--drift-fraction", "0"]) == 0
+    assert "a later day needs its intervals 1.0 x wider" in capsys.readouterr().out
+    np.testing.assert_array_equal(load_snapshot(model).drift_scale, np.ones(6))
+    assert main([*argv, "--drift-fraction", "1.5"]) == 2
+    assert "train.drift_fraction must be in [0, 1), got 1.5" in capsys.readouterr().err
+
+
 def evaluate_envelope(model: Path, data: Path) -> int:
     """How many of ``data``'s poses lie past ``model``'s envelope (learner.workflow's count)."""
     from kinematics.dataset import read_dataset
