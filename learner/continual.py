@@ -249,14 +249,14 @@ class ContinualLearner:
         (:func:`learner.carry.carried_frames`), empty the held-out set (another day's) and fit the
         carried network's gain on these points (:meth:`ErrorModel.weigh_residual`); returns it.
         Gain and scale are re-fitted on the day's held-out points once :data:`MIN_DAY_POINTS`
-        are there. Until then the scale is the model's times its ``drift_scale``, or where the
-        frames moved or these points need a far wider one (:func:`learner.carry.unverified`) no
-        narrower than they show (to frames fitted without them where the frames moved:
-        :func:`learner.carry.held_out_labels`), and :attr:`~ErrorModel.unverified` (compensation
-        trusts none of it). Its points are kept to fit its frames again (:class:`CarriedDay`)."""
+        are there. Until then the scale is the model's times its ``drift_scale`` (not again on a
+        young day), or, where the frames moved or these points need a far wider one, no narrower
+        than they show (:func:`~learner.carry.held_out_labels`) and ``unverified``
+        (:func:`learner.carry.unverified`). Its points refit its frames (:class:`CarriedDay`)."""
         X, Y = checked_batch(X, Y, self.model.spec.n_features)
         needed, miss = scale_needed(self.model, X, Y)
-        drift = self.model.drift_scale
+        young = self.day_scale is not None and len(self._cal_x) < MIN_DAY_POINTS
+        drift = np.ones(6) if young else self.model.drift_scale  # young: its scale allows for it
         spec, residual, priors = self.model.spec, self.model.residual(X), self._frame_priors
         old, (base, moved) = self.base, carried_frames(self.base, spec, X, Y, residual, *priors)
         self.day = CarriedDay.start(old, len(X), spec.n_features)

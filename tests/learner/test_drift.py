@@ -7,7 +7,7 @@ import pytest
 
 from kinematics.errors import SnapshotError
 from learner.config import ContinualConfig, TrainConfig
-from learner.continual import ContinualLearner
+from learner.continual import ContinualLearner, state_from_bytes, state_to_bytes
 from learner.metrics import accuracy_report
 from learner.snapshot import snapshot_from_bytes, snapshot_to_bytes
 from learner.workflow import prepare, train_on_dataset
@@ -79,6 +79,23 @@ def test_a_carry_starts_the_day_as_wide_as_the_drift_says_and_trusts_it(trained)
     )
     assert learner.model.unverified == ""
     assert accuracy_report(learner.model, X[20:], Y[20:]).coverage_90 > 0.85
+
+
+def test_a_day_carried_again_while_young_is_not_widened_twice(trained):
+    """A day saved before 20 of its points were held out and carried on into the next keeps
+    the scale its first carry gave: the drift is allowed for once, not once a day."""
+    model = trained["drifting"].model
+    p = prepare(make_dataset(200, seed=9), test_fraction=0.0, spec=model.spec)
+    learner = ContinualLearner(snapshot_from_bytes(snapshot_to_bytes(model)), ContinualConfig())
+    learner.carry(p.X[:20], p.Y[:20])
+    learner.update(p.X[20:120], p.Y[20:120])  # 10 of them held out: the day is young
+    restarted = ContinualLearner(learner.model, ContinualConfig())
+    restarted.load_state(state_from_bytes(state_to_bytes(learner.state_dict())))
+    restarted.carry(p.X[120:140], p.Y[120:140])
+    np.testing.assert_allclose(restarted.day_scale, learner.day_scale)
+    fresh = ContinualLearner(snapshot_from_bytes(snapshot_to_bytes(model)), ContinualConfig())
+    fresh.carry(p.X[120:140], p.Y[120:140])
+    np.testing.assert_allclose(fresh.day_scale, model.interval_scale * model.drift_scale)
 
 
 def test_a_snapshot_whose_drift_is_not_six_positive_factors_is_refused(trained):
