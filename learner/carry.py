@@ -192,12 +192,13 @@ MIN_DRIFT_POINTS = 50
 def drift_scale(model: ErrorModel, X: np.ndarray, Y: np.ndarray, t: np.ndarray) -> np.ndarray:
     """How many times wider, per component (never narrower), ``model``'s intervals must be on
     points recorded after those it was trained on, ``X, Y`` at times ``t`` (s): a
-    :meth:`~ErrorModel.clone` trained on all but the last ``train_cfg.drift_fraction`` of them
-    in time, its scale calibrated as ``fit`` does, over the scale those last points need from
-    it. A scale calibrated on a random tenth of the points knows how wrong the model is between
-    them, not on a later day: on UR10 Series A's first day this is 3.1-3.7 x, and its later
-    days need 2.5-2.7 x (BENCHMARKS.md, "Drift measured in training"). Ones where fewer than
-    :data:`MIN_DRIFT_POINTS` are last or the clock never moves."""
+    :meth:`~ErrorModel.clone` (on ``model``'s base as it is) trained on all but the last
+    ``train_cfg.drift_fraction`` of them in time, its scale calibrated as ``fit`` does, over the
+    scale those last points need from it. A scale calibrated on a random tenth of the points
+    knows how wrong the model is between them, not on a later day: on UR10 Series A's first day
+    this is 3.0-3.7 x, and its later days need 2.5-2.7 x (BENCHMARKS.md, "Drift measured in
+    training"). Ones where fewer than :data:`MIN_DRIFT_POINTS` are last or the clock never
+    moves."""
     t = np.asarray(t, dtype=float)
     n_last = round(model.train_cfg.drift_fraction * len(t))
     if n_last < MIN_DRIFT_POINTS or not np.ptp(t) > 0:

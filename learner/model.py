@@ -102,7 +102,7 @@ class ErrorModel:
         #: How many times wider, per component, its intervals must be on a later day than its
         #: own scale makes them, as its training days' last hours showed (ones: not measured;
         #: :func:`learner.carry.drift_scale`). A carry into a new day starts with them so wide.
-        self.drift_scale = np.ones(N_LABELS) if drift_scale is None else np.asarray(drift_scale)
+        self.drift_scale = np.ones(N_LABELS) if drift_scale is None else np.array(drift_scale)
         self.net = EvidentialEnsemble(
             n_inputs=n_inputs(spec, model_cfg.encoding),
             hidden_layers=model_cfg.hidden_layers,
