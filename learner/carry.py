@@ -17,6 +17,7 @@ from it, and the intervals there say so. As the day's points keep coming
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -189,7 +190,13 @@ def scale_needed(model: ErrorModel, X: np.ndarray, Y: np.ndarray) -> tuple[np.nd
 MIN_DRIFT_POINTS = 50
 
 
-def drift_scale(model: ErrorModel, X: np.ndarray, Y: np.ndarray, t: np.ndarray) -> np.ndarray:
+def drift_scale(
+    model: ErrorModel,
+    X: np.ndarray,
+    Y: np.ndarray,
+    t: np.ndarray,
+    on_epoch: Callable[[int, float], None] | None = None,
+) -> np.ndarray:
     """How many times wider, per component (never narrower), ``model``'s intervals must be on
     points recorded after those it was trained on, ``X, Y`` at times ``t`` (s): a
     :meth:`~ErrorModel.clone` (on ``model``'s base as it is) trained on all but the last
@@ -198,14 +205,14 @@ def drift_scale(model: ErrorModel, X: np.ndarray, Y: np.ndarray, t: np.ndarray) 
     knows how wrong the model is between them, not on a later day: on UR10 Series A's first day
     this is 3.0-3.7 x, and its later days need 2.5-2.7 x (BENCHMARKS.md, "Drift measured in
     training"). Ones where fewer than :data:`MIN_DRIFT_POINTS` are last or the clock never
-    moves."""
+    moves. ``on_epoch`` follows the clone's training as :meth:`~ErrorModel.fit`'s does."""
     t = np.asarray(t, dtype=float)
     n_last = round(model.train_cfg.drift_fraction * len(t))
     if n_last < MIN_DRIFT_POINTS or not np.ptp(t) > 0:
         return np.ones(Y.shape[1])
     order = np.argsort(t, kind="stable")
     probe = model.clone()
-    probe.fit(X[order[:-n_last]], Y[order[:-n_last]])
+    probe.fit(X[order[:-n_last]], Y[order[:-n_last]], on_epoch=on_epoch)
     needed, _ = scale_needed(probe, X[order[-n_last:]], Y[order[-n_last:]])
     return np.maximum(needed / probe.interval_scale, 1.0)
 

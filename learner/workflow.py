@@ -145,7 +145,7 @@ def train_on_dataset(
         fits.append((model, model.fit(p.X[p.train], p.Y[p.train], on_epoch=on_epoch)))
     model, report = best_on_validation(fits, p.X[p.train], p.Y[p.train])
     times = ds.table["t"].to_numpy(float)[train]
-    model.drift_scale = drift_scale(model, p.X[train], p.Y[train], times)
+    model.drift_scale = drift_scale(model, p.X[train], p.Y[train], times, on_epoch)
     test = accuracy_report(model, p.X[p.test], p.Y[p.test]) if len(p.test) else None
     model.metrics = {} if test is None else test.to_dict()
     learner = ContinualLearner(model, ContinualConfig(seed=seed))

@@ -77,7 +77,7 @@ class Train(Command):
         with tqdm(total=cfg.max_epochs, desc="train", unit="epoch", file=sys.stderr) as bar:
 
             def progress(epoch: int, val_mse: float) -> None:
-                if epoch < bar.n:  # the next base's fit (--base best)
+                if epoch < bar.n:  # the next base's fit (--base best), then the drift's
                     bar.reset()
                 bar.update()
                 bar.set_postfix(val_mse=f"{val_mse:.4g}")
