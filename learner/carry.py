@@ -175,6 +175,11 @@ def unverified(moved: bool, miss: float, n: int) -> str:
     )
 
 
+def position_factor(factors: np.ndarray) -> float:
+    """One number for per-component scale factors: the geometric mean of x, y, z."""
+    return float(np.exp(np.mean(np.log(factors[:3]))))
+
+
 def scale_needed(model: ErrorModel, X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, float]:
     """The interval scale ``model``, as it comes, needs on a day's first points ``X, Y`` (its
     own left as it was), and how many times its own that is (geometric mean of x, y, z)."""
@@ -183,7 +188,7 @@ def scale_needed(model: ErrorModel, X: np.ndarray, Y: np.ndarray) -> tuple[np.nd
         needed = model.calibrate(X, Y)
     finally:
         model.interval_scale = own
-    return needed, float(np.exp(np.mean(np.log(needed[:3] / own[:3]))))
+    return needed, position_factor(needed / own)
 
 
 #: Fewest last points in time that measure a model's drift (:func:`drift_scale`).

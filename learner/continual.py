@@ -38,6 +38,7 @@ from learner.carry import (
     CarriedDay,
     carried_frames,
     held_out_labels,
+    position_factor,
     scale_needed,
     unverified,
 )
@@ -264,8 +265,7 @@ class ContinualLearner:
         self._cal_x, self._cal_y = self._cal_x[:0], self._cal_y[:0]
         self.trained.residual_gain = self.model.weigh_residual(X, Y)
         scale = self.model.interval_scale * drift  # a later day, as its own last hours showed
-        miss /= float(np.exp(np.mean(np.log(drift[:3]))))
-        self.model.unverified = unverified(moved, miss, len(X))
+        self.model.unverified = unverified(moved, miss / position_factor(drift), len(X))
         if moved:
             needed = self.model.calibrate(
                 X, held_out_labels(old, spec, X, Y, residual, priors[1], base)

@@ -63,10 +63,10 @@ class Train(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
-        import numpy as np
         from tqdm import tqdm
 
         from kinematics.dataset import read_dataset
+        from learner.carry import position_factor
         from learner.workflow import train_on_dataset
         from stream.reports.learner import write_trained
 
@@ -98,7 +98,7 @@ class Train(Command):
             "n_weights": result.model.n_weights,
             "drift_scale": [round(float(s), 3) for s in result.model.drift_scale],
         }
-        later = np.exp(np.log(result.model.drift_scale[:3]).mean())
+        later = position_factor(result.model.drift_scale)
         text = (
             f"model -> {args.out} ({result.n_train} points, {result.report.epochs} epochs, "
             f"base {result.model.base_kind}; a later day needs its intervals {later:.1f} x wider)"

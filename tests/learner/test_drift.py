@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from kinematics.errors import SnapshotError
+from learner.carry import position_factor
 from learner.config import ContinualConfig, TrainConfig
 from learner.continual import ContinualLearner, state_from_bytes, state_to_bytes
 from learner.metrics import accuracy_report
@@ -39,14 +40,10 @@ def trained():
     }
 
 
-def _geo(scale):
-    return float(np.exp(np.log(scale[:3]).mean()))
-
-
 def test_training_measures_how_much_wider_a_later_day_needs_the_intervals(trained):
     steady, drifting = trained["steady"].model, trained["drifting"].model
     assert steady.drift_scale.shape == (6,) and steady.drift_scale.min() >= 1.0
-    assert _geo(steady.drift_scale) < 1.5
+    assert position_factor(steady.drift_scale) < 1.5
     x, y, z = drifting.drift_scale[:3]
     assert x > 2.0 and z > 2.0 and y < 1.5  # it moved along x and z, not y
     again = snapshot_from_bytes(snapshot_to_bytes(drifting))
