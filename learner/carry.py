@@ -162,8 +162,9 @@ MIN_DAY_POINTS = 20
 
 def unverified(moved: bool, miss: float, n: int) -> str:
     """Why a day carried from its first ``n`` points is not trusted until :data:`MIN_DAY_POINTS`
-    of it are held out ("" where it is): its frames moved, or the intervals its model came with
-    were more than :data:`MISS_EVIDENCE` times too narrow there (``miss``)."""
+    of it are held out ("" where it is): its frames moved, or the intervals the carry starts it
+    with (its model's, times its drift scale) were more than :data:`MISS_EVIDENCE` times too
+    narrow there (``miss``)."""
     if not moved and miss <= MISS_EVIDENCE:
         return ""
     why = (

@@ -257,7 +257,7 @@ class ContinualLearner:
         X, Y = checked_batch(X, Y, self.model.spec.n_features)
         needed, miss = scale_needed(self.model, X, Y)
         young = self.day_scale is not None and len(self._cal_x) < MIN_DAY_POINTS
-        drift = np.ones(6) if young else self.model.drift_scale  # young: its scale allows for it
+        drift = np.ones_like(self.model.drift_scale) if young else self.model.drift_scale
         spec, residual, priors = self.model.spec, self.model.residual(X), self._frame_priors
         old, (base, moved) = self.base, carried_frames(self.base, spec, X, Y, residual, *priors)
         self.day = CarriedDay.start(old, len(X), spec.n_features)
