@@ -156,8 +156,8 @@ def templates(ds, model_payload) -> dict:
 
 def forged_models(genuine: bytes, robot: str) -> list[bytes]:
     """Foreign and forged snapshots: a UR10 model under this robot's name, the genuine snapshot
-    with an implausible version, a wrong robot or a nested ``unverified``, truncated and random
-    bytes."""
+    with an implausible version, a wrong robot, a nested ``unverified`` or a negative
+    ``drift_scale`` of three factors, truncated and random bytes."""
     header, snap = decode_model(genuine)
     ur10 = load_description("ur10")
     foreign = ErrorModel.create(
@@ -166,6 +166,8 @@ def forged_models(genuine: bytes, robot: str) -> list[bytes]:
     ur10_snap = snapshot_to_bytes(foreign, {"model_version": header.model_version + 1})
     meta = snapshot_meta(snap) | {"unverified": {"nested": [1, {"deeper": None}]}}
     odd_snap = st_save(st_load(snap), metadata={"robocal": json.dumps(meta)})
+    bad_drift = st_load(snap) | {"drift_scale": torch.full((3,), -1.0, dtype=torch.float64)}
+    drift_snap = st_save(bad_drift, metadata={"robocal": json.dumps(snapshot_meta(snap))})
 
     def framed(snapshot, version, n_seen, name=robot):
         return encode_model(
@@ -178,6 +180,7 @@ def forged_models(genuine: bytes, robot: str) -> list[bytes]:
         framed(snap, 2**53, 2**53),
         framed(snap, header.model_version + 1, 10_000, name="ur10"),
         framed(odd_snap, header.model_version + 1, 10_000),
+        framed(drift_snap, header.model_version + 1, 10_000),
         framed(snap[: len(snap) // 2], header.model_version + 1, 10_000),
         framed(b"\x00" * 64, header.model_version + 1, 10_000),
         genuine[:20],
