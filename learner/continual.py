@@ -19,6 +19,8 @@ The model the learner publishes (:attr:`ContinualLearner.model`) is not the trai
 (:attr:`ContinualLearner.trained`) but an exponential moving average of its weights over
 updates, the latest update's share ``average``: it keeps what the earlier memories taught
 (paper campaign 0.054 -> 0.050 mm, BENCHMARKS.md). Ranking and training use the trained weights.
+As the stream grows a fresh network is trained on the memory and kept where it predicts the
+held-out set better: warm-started updates stop generalising (:mod:`learner.refresh`).
 """
 
 from __future__ import annotations
@@ -56,8 +58,9 @@ from learner.continual_state import (  # noqa: F401
 )
 from learner.model import MIN_CALIBRATION, ErrorModel
 from learner.quarantine import QuarantineState, holdout_mm, model_residuals, screen, withhold
+from learner.refresh import fresh_fit, grew
 from learner.replay import replay_strategy
-from learner.snapshot import load_snapshot, snapshot_from_bytes, snapshot_to_bytes
+from learner.snapshot import copy_model, load_snapshot
 from learner.training import Trainer, TrainReport
 
 
@@ -75,8 +78,7 @@ class ContinualLearner:
         n_f = model.spec.n_features
         self._mem_x, self._mem_y = np.empty((0, n_f)), np.empty((0, 6))
         self._cal_x, self._cal_y = np.empty((0, n_f)), np.empty((0, 6))
-        self.n_seen = 0
-        self.version = 0
+        self.n_seen, self.version = 0, 0
         self.quarantine = QuarantineState.empty()
         self.n_withheld = 0
         #: A carried model's interval scale (no ACI) while its day is young (:meth:`carry`).
@@ -84,7 +86,7 @@ class ContinualLearner:
         self.day: CarriedDay | None = None  # a carried day's points, its frames fitted again
         self.trainer: Trainer | None = None  # runs its fits (None: here; stream: a process)
         if model.is_fitted:  # a trained model (a snapshot) goes on learning with an empty memory
-            self.trained = _copy(model)
+            self.trained = copy_model(model)
             self.version = 1
 
     @property
@@ -118,7 +120,7 @@ class ContinualLearner:
         elif status(self.base) == "refitted":  # a model file's base: fitted to this stream
             self.trained.base = refined_base(self.base, self.trained.spec, X, Y) or self.base
         report = self.trained.fit(X, Y, max_epochs=self.cfg.init_epochs, trainer=self.trainer)
-        self.model = _copy(self.trained)
+        self.model = copy_model(self.trained)
         self.version += 1
         m = self._metrics(len(X), len(self._mem_x), report, time.perf_counter() - start)
         return replace(m, quarantined=int(n_in - ok.sum()))
@@ -141,7 +143,10 @@ class ContinualLearner:
         n_in = len(X_new)
         ok = np.ones(n_in, dtype=bool) if screened else self.screen(X_new, Y_new)
         X_new, Y_new, out = X_new[ok], Y_new[ok], {"quarantined": int(n_in - ok.sum())}
-        seen = self.n_seen + n_in  # held-out and quarantined points included: every point given
+        before, seen = (
+            self.n_seen,
+            self.n_seen + n_in,
+        )  # held-out and quarantined points included: every point given
         if self.version == 0:  # collecting the first points; the first model once there
             pool_x = np.concatenate([self._mem_x, X_new])
             pool_y = np.concatenate([self._mem_y, Y_new])
@@ -187,6 +192,7 @@ class ContinualLearner:
         )
         withheld, holdout_mm = self._publish_gated()
         self._reidentify()
+        self._refresh(before)
         new_kept = int(np.sum(keep >= len(pool_x) - len(X_new)))
         batch_err = np.linalg.norm((pred - pool_y)[-len(X_new) :, :3], axis=1)
         dt = time.perf_counter() - start
@@ -204,20 +210,30 @@ class ContinualLearner:
     def _reidentify(self) -> None:
         """Retrain on the base the memory identifies when due (:mod:`learner.continual_base`);
         publish it if the held-out error falls."""
-        cal = (self._cal_x, self._cal_y)
-        if len(cal[0]) < MIN_CALIBRATION or not due(self.version, self.base):
+        if len(self._cal_x) < MIN_CALIBRATION or not due(self.version, self.base):
             return
         base = memory_base(self.base, self.trained.spec, self._mem_x, self._mem_y)
         if base is None:
             return
-        new = _copy(self.trained)
-        new.base = base
+        new = copy_model(self.trained)
+        new.base, mem, cal = base, (self._mem_x, self._mem_y), (self._cal_x, self._cal_y)
         epochs, trainer = self.cfg.init_epochs, self.trainer
-        new.fit(
-            self._mem_x, self._mem_y, *cal, max_epochs=epochs, val_fraction=0.0, trainer=trainer
-        )
+        new.fit(*mem, *cal, max_epochs=epochs, val_fraction=0.0, trainer=trainer)
+        self._adopt(new)
+
+    def _refresh(self, before: int) -> None:
+        """A fresh network on the memory each time the points given grow by ``refresh_growth``
+        (:mod:`learner.refresh`; not on a carried day), kept if the held-out error falls."""
+        due = grew(before, self.n_seen, self.cfg.init, self.cfg.refresh_growth)
+        if due and self.day is None and len(self._cal_x) >= MIN_CALIBRATION:
+            mem, cal = (self._mem_x, self._mem_y), (self._cal_x, self._cal_y)
+            self._adopt(fresh_fit(self.trained, *mem, *cal, self.trainer))
+
+    def _adopt(self, new: ErrorModel) -> None:
+        """Train on and publish ``new`` where it predicts the held-out set better."""
+        cal = (self._cal_x, self._cal_y)
         if holdout_mm(new, *cal) < holdout_mm(self.model, *cal):
-            self.trained, self.model = new, _copy(new)
+            self.trained, self.model = new, copy_model(new)
             self.model.interval_scale = self.model.interval_scale * np.exp(self.aci_log_scale)
             self.version += 1
 
@@ -225,7 +241,7 @@ class ContinualLearner:
         """Publish the update unless the gate withholds it (the held-out error grew beyond the
         tolerance; the last published model stays). Withheld?, and held-out error (mm)."""
         before = holdout_mm(self.model, self._cal_x, self._cal_y)
-        last = _copy(self.model)
+        last = copy_model(self.model)
         self._publish()
         after = holdout_mm(self.model, self._cal_x, self._cal_y)
         if withhold(before, after, len(self._cal_x), self.cfg.quarantine):
@@ -350,31 +366,18 @@ class ContinualLearner:
     def _metrics(
         self,
         n_new: int,
-        new_kept: int,
+        kept: int,
         report: TrainReport | None,
         dt: float,
-        batch_err: np.ndarray | None = None,
+        err: np.ndarray | None = None,
     ) -> UpdateMetrics:
-        batch_err = np.full(1, np.nan) if batch_err is None else batch_err
+        """This step's :class:`UpdateMetrics` (``err``: the new points' errors before it, m)."""
         train_mm = np.nan
         if self.trained.is_fitted and len(self._mem_x):
             res = self.trained.predict(self._mem_x).gamma - self._mem_y
             train_mm = float(np.linalg.norm(res[:, :3], axis=1).mean() * 1e3)
-        return UpdateMetrics(
-            version=self.version,
-            n_seen=self.n_seen,
-            n_new=n_new,
-            memory_size=len(self._mem_x),
-            new_in_memory=new_kept,
-            epochs=0 if report is None else report.epochs,
-            train_time_s=dt,
-            batch_mean_mm=float(batch_err.mean() * 1e3),
-            batch_max_mm=float(batch_err.max() * 1e3),
-            train_mean_mm=train_mm,
-            skipped_steps=0 if report is None else report.skipped_steps,
-        )
-
-    # -- persistence ---------------------------------------------------------------------------
+        counts = (self.version, self.n_seen, n_new, len(self._mem_x), kept)
+        return UpdateMetrics.of(*counts, report, dt, err, train_mm)
 
     def state_dict(self) -> dict:
         """Everything a restart needs (:func:`learner.continual_state.learner_state`)."""
@@ -383,11 +386,6 @@ class ContinualLearner:
     def load_state(self, state: dict) -> None:
         """Continue from a :meth:`state_dict` (the models are replaced by the stored ones)."""
         restore_learner(self, state)
-
-
-def _copy(model: ErrorModel) -> ErrorModel:
-    """An independent copy of ``model`` (through its snapshot: weights, scalers, base)."""
-    return snapshot_from_bytes(snapshot_to_bytes(model))
 
 
 def load_learner(model_path: str | Path, cfg: ContinualConfig) -> ContinualLearner:

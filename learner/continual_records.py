@@ -8,6 +8,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from kinematics.errors import DatasetError
+from learner.training import TrainReport
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -35,6 +36,36 @@ class UpdateMetrics:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    @classmethod
+    def of(
+        cls,
+        version: int,
+        n_seen: int,
+        n_new: int,
+        memory_size: int,
+        new_in_memory: int,
+        report: TrainReport | None,
+        train_time_s: float,
+        batch_err: np.ndarray | None,
+        train_mean_mm: float,
+    ) -> UpdateMetrics:
+        """A step's metrics from its counts, training report (None: it trained nothing), the
+        new points' position errors before it (m; None: none) and the memory's error after."""
+        batch_err = np.full(1, np.nan) if batch_err is None else batch_err
+        return cls(
+            version=version,
+            n_seen=n_seen,
+            n_new=n_new,
+            memory_size=memory_size,
+            new_in_memory=new_in_memory,
+            epochs=0 if report is None else report.epochs,
+            train_time_s=train_time_s,
+            batch_mean_mm=float(batch_err.mean() * 1e3),
+            batch_max_mm=float(batch_err.max() * 1e3),
+            train_mean_mm=train_mean_mm,
+            skipped_steps=0 if report is None else report.skipped_steps,
+        )
 
 
 @dataclass(frozen=True)

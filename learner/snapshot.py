@@ -173,6 +173,11 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
     return model
 
 
+def copy_model(model: ErrorModel) -> ErrorModel:
+    """An independent copy of ``model`` (through its snapshot: weights, scalers, base)."""
+    return snapshot_from_bytes(snapshot_to_bytes(model))
+
+
 def _drift_scale(tensors: dict) -> np.ndarray | None:
     """The ``drift_scale`` tensor: absent is not measured (None); one positive factor per label
     component, or a SnapshotError."""

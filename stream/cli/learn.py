@@ -115,6 +115,8 @@ _CONTINUAL_OPTIONS = {
     "strategy": None,
     "epochs_per_update": None,
     "update_points": "memory points over which an update trains every epoch (fewer above)",
+    "refresh_growth": "train a fresh network on the memory each time the points grow by this "
+    "factor (0: never)",
     "frame_prior_mm": "with --from: how far the base's frames may move on the first points (mm)",
     "moved_frame_prior_mm": "with --from: the same once those points show a moved tracker/tool",
     "day_frame_points": "with --from: fit the frames again on up to this many of the day's points",

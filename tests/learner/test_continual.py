@@ -40,6 +40,7 @@ def _learner(strategy, memory=100, batch=25, epochs=30, seed=0, holdout=0.0, ave
         holdout=holdout,
         calibration_size=20,
         average=average,
+        refresh_growth=0,  # a fresh network as the stream grows: tests/learner/test_refresh.py
     )
     return ContinualLearner(model, cfg)
 
