@@ -19,8 +19,8 @@ The model the learner publishes (:attr:`ContinualLearner.model`) is not the trai
 (:attr:`ContinualLearner.trained`) but an exponential moving average of its weights over
 updates, the latest update's share ``average``: it keeps what the earlier memories taught
 (paper campaign 0.054 -> 0.050 mm, BENCHMARKS.md). Ranking and training use the trained weights.
-As the stream grows a fresh network is trained on the memory and kept where it predicts the
-held-out set better: warm-started updates stop generalising (:mod:`learner.refresh`).
+With ``refresh_growth`` (off by default) a fresh network is trained on the memory as the
+stream grows and kept where it predicts the held-out set better (:mod:`learner.refresh`).
 """
 
 from __future__ import annotations
@@ -143,10 +143,8 @@ class ContinualLearner:
         n_in = len(X_new)
         ok = np.ones(n_in, dtype=bool) if screened else self.screen(X_new, Y_new)
         X_new, Y_new, out = X_new[ok], Y_new[ok], {"quarantined": int(n_in - ok.sum())}
-        before, seen = (
-            self.n_seen,
-            self.n_seen + n_in,
-        )  # held-out and quarantined points included: every point given
+        before = self.n_seen
+        seen = before + n_in  # held-out and quarantined points included: every point given
         if self.version == 0:  # collecting the first points; the first model once there
             pool_x = np.concatenate([self._mem_x, X_new])
             pool_y = np.concatenate([self._mem_y, Y_new])

@@ -40,6 +40,7 @@ from learner.base import (
     refit_base,
 )
 from learner.features import FeatureSpec
+from learner.refresh import grew
 
 #: Versions between tries to identify an ``auto`` base the first points left on the nominal.
 LATE_BASE_EVERY = 10
@@ -89,7 +90,7 @@ def doubled(before: int, after: int, init: int) -> bool:
     >>> [n for n in range(50, 500, 90) if doubled(n, n + 90, 50)]
     [50, 140, 320]
     """
-    return (after // init).bit_length() > (max(before, 0) // init).bit_length()
+    return grew(before, after, init, 2.0)
 
 
 def refined_base(
