@@ -2,9 +2,10 @@
 ``robocal continual --from`` and the daemon's ``start_from`` do, through all of the next day's
 training points in recorded order, its frames fitted again as the day's points double
 (``ContinualConfig.day_frame_points``, default) or left as the first 50 points fitted them
-(``day_frame_points = 0``). Reported per case and setting: the day's prequential mean error
-(each batch scored before it is learned: what the line saw during the day) and the final
-model's mean, p95 and 90 % coverage on the day's held-out 10 %.
+(``day_frame_points = 0``), and with or without a fresh network trained on the memory as
+the day's points double (``day_refresh_growth``). Reported per case and setting: the day's
+prequential mean error (each batch scored before it is learned: what the line saw during the
+day) and the final model's mean, p95 and 90 % coverage on the day's held-out 10 %.
 
 Cases: random arms of ``sim_sources.unseen`` (``--arms``; 1,200 points, a hidden effect of 8
 noise floors by seed, geometric error of 20; day 1 the poses with q1 below its median, day 2
@@ -13,7 +14,8 @@ the rest with the tracker moved by 2 mm / 2 mrad and the tool by 1 mm / 1 mrad) 
 registration differs per series). Source models: 300 epochs, geometric base, seed 0, cached
 in ``--cache``.
 
-    .venv/bin/python bench/learner_moved_day.py --a /tmp/a.parquet --b /tmp/b.parquet
+    .venv/bin/python bench/learner_moved_day.py --a /tmp/a.parquet --b /tmp/b.parquet \
+        [--settings defaults "no fresh network"]
 """
 
 import argparse
@@ -40,7 +42,12 @@ from stream.reports.learner import write_trained
 EFFECTS = ("joint_compliance", "gear_periodic", "thermal_expansion", "joint_coupling")
 TRACKER_MOVE = transform_from_xyz_rpy([2e-3, -1e-3, 0.5e-3], [0.0, 1e-3, 2e-3])
 TOOL_MOVE = transform_from_xyz_rpy([0.0, 1e-3, 0.0], [1e-3, 0.0, 0.0])
-SETTINGS = {"fitted again": None, "first points": 0}  # None: ContinualConfig's default
+#: ContinualConfig fields changed from its defaults, by setting.
+SETTINGS = {
+    "defaults": {},
+    "first points' frames": {"day_frame_points": 0},
+    "no fresh network": {"day_refresh_growth": 0.0},
+}
 
 
 def moved_days(seed: int, folder: Path) -> tuple[Path, Path]:
@@ -80,11 +87,10 @@ def source_model(day: Path, folder: Path, epochs: int) -> Path:
     return path
 
 
-def stream_day(model_path: Path, day: Path, day_frame_points: int | None) -> dict:
-    """All of ``day`` streamed from the model at ``model_path`` (its state: the memory)."""
-    cfg = ContinualConfig()
-    if day_frame_points is not None:
-        cfg = ContinualConfig(day_frame_points=day_frame_points)
+def stream_day(model_path: Path, day: Path, changed: dict) -> dict:
+    """All of ``day`` streamed from the model at ``model_path`` (its state: the memory), at the
+    defaults but the ``changed`` config fields."""
+    cfg = ContinualConfig(**changed)
     start = time.perf_counter()
     r = continual_on_dataset(read_dataset(day), cfg, start=load_learner(model_path, cfg))
     n = np.array([m.n_new for m in r.updates if m.n_new])
@@ -107,6 +113,7 @@ def main() -> None:
     ap.add_argument("--b")
     ap.add_argument("--max-epochs", type=int, default=300)
     ap.add_argument("--cache", help="folder keeping the days and source models between runs")
+    ap.add_argument("--settings", nargs="+", choices=list(SETTINGS), default=list(SETTINGS))
     args = ap.parse_args()
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as tmp:
@@ -118,9 +125,9 @@ def main() -> None:
         out = {}
         for name, (day1, day2) in cases.items():
             model = source_model(day1, folder, args.max_epochs)
-            out[name] = {k: stream_day(model, day2, v) for k, v in SETTINGS.items()}
+            out[name] = {k: stream_day(model, day2, SETTINGS[k]) for k in args.settings}
             print(json.dumps({name: out[name]}), flush=True)
-    print("| case | frames | prequential mm | final mean mm | p95 | 90 % cov. | fitted on | s |")
+    print("| case | setting | prequential mm | final mean mm | p95 | 90 % cov. | fitted on | s |")
     print("|---|---|---|---|---|---|---|---|")
     for name, rows in out.items():
         for setting, r in rows.items():

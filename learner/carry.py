@@ -259,20 +259,25 @@ class CarriedDay:
     the day's start temperature and one region); fitted again on all its points each time
     they double, that error spreads out: arm 406 of ``sim_sources.unseen``, tracker moved by
     2 mm, ended its day at 0.110 mm on the first points' frames, at 0.061 mm fitted again
-    (``bench/learner_moved_day.py``)."""
+    (``bench/learner_moved_day.py``). ``seen_before``: the points the learner had been given
+    before the day (so that the day's own count schedules its fresh networks)."""
 
     source_frames: np.ndarray
     source_note: str
     x: np.ndarray
     y: np.ndarray
     fitted: int
+    seen_before: int = 0
 
     @classmethod
-    def start(cls, source: PhysicsBase, n_fitted: int, n_features: int) -> CarriedDay:
-        """A day carried from ``source``, its frames fitted on its first ``n_fitted`` points."""
+    def start(
+        cls, source: PhysicsBase, n_fitted: int, n_features: int, seen_before: int = 0
+    ) -> CarriedDay:
+        """A day carried from ``source``, its frames fitted on its first ``n_fitted`` points,
+        after ``seen_before`` points of earlier days."""
         frames = np.stack([source.T_0_B, source.description.tool])
         empty = np.empty((0, n_features)), np.empty((0, 6))
-        return cls(frames, source.note, *empty, fitted=n_fitted)
+        return cls(frames, source.note, *empty, fitted=n_fitted, seen_before=seen_before)
 
     def add(self, X: np.ndarray, Y: np.ndarray, limit: int) -> CarriedDay:
         """With the trained points ``X, Y`` of an update added (none past ``limit``)."""

@@ -20,7 +20,8 @@ The model the learner publishes (:attr:`ContinualLearner.model`) is not the trai
 updates, the latest update's share ``average``: it keeps what the earlier memories taught
 (paper campaign 0.054 -> 0.050 mm, BENCHMARKS.md). Ranking and training use the trained weights.
 With ``refresh_growth`` (off by default) a fresh network is trained on the memory as the
-stream grows and kept where it predicts the held-out set better (:mod:`learner.refresh`).
+stream grows and kept where it predicts the held-out set better (:mod:`learner.refresh`); on a
+carried day ``day_refresh_growth`` (on) does so as the day's own points grow.
 """
 
 from __future__ import annotations
@@ -58,7 +59,7 @@ from learner.continual_state import (  # noqa: F401
 )
 from learner.model import MIN_CALIBRATION, ErrorModel
 from learner.quarantine import QuarantineState, holdout_mm, model_residuals, screen, withhold
-from learner.refresh import fresh_fit, grew
+from learner.refresh import fresh_fit, refresh_due
 from learner.replay import replay_strategy
 from learner.snapshot import copy_model, load_snapshot
 from learner.training import Trainer, TrainReport
@@ -220,10 +221,10 @@ class ContinualLearner:
         self._adopt(new)
 
     def _refresh(self, before: int) -> None:
-        """A fresh network on the memory each time the points given grow by ``refresh_growth``
-        (:mod:`learner.refresh`; not on a carried day), kept if the held-out error falls."""
-        due = grew(before, self.n_seen, self.cfg.init, self.cfg.refresh_growth)
-        if due and self.day is None and len(self._cal_x) >= MIN_CALIBRATION:
+        """A fresh network on the memory when :func:`~learner.refresh.refresh_due` (the points
+        given, or a carried day's own, grew), kept if the held-out error falls."""
+        day_start = None if self.day is None else self.day.seen_before
+        if refresh_due(self.cfg, day_start, before, self.n_seen, len(self._cal_x)):
             mem, cal = (self._mem_x, self._mem_y), (self._cal_x, self._cal_y)
             self._adopt(fresh_fit(self.trained, *mem, *cal, self.trainer))
 
@@ -274,7 +275,7 @@ class ContinualLearner:
         drift = np.ones_like(self.model.drift_scale) if young else self.model.drift_scale
         spec, residual, priors = self.model.spec, self.model.residual(X), self._frame_priors
         old, (base, moved) = self.base, carried_frames(self.base, spec, X, Y, residual, *priors)
-        self.day = CarriedDay.start(old, len(X), spec.n_features)
+        self.day = CarriedDay.start(old, len(X), spec.n_features, self.n_seen)
         self.rebase(base)
         self._cal_x, self._cal_y = self._cal_x[:0], self._cal_y[:0]
         self.trained.residual_gain = self.model.weigh_residual(X, Y)

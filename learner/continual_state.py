@@ -28,7 +28,7 @@ def state_path(model_path: str | Path) -> Path:
 
 
 STATE_SCHEMA = "robocal.continual"
-_META = ("n_withheld", "quarantine_meta", "day_fitted", "day_note")
+_META = ("n_withheld", "quarantine_meta", "day_fitted", "day_note", "day_seen_before")
 
 
 def state_to_bytes(state: dict) -> bytes:
@@ -97,7 +97,15 @@ def learner_state(learner: Any) -> dict:
         **(
             {} if day is None else {"day_x": day.x, "day_y": day.y, "day_frames": day.source_frames}
         ),
-        **({} if day is None else {"day_fitted": day.fitted, "day_note": day.source_note}),
+        **(
+            {}
+            if day is None
+            else {
+                "day_fitted": day.fitted,
+                "day_note": day.source_note,
+                "day_seen_before": day.seen_before,
+            }
+        ),
         **learner.quarantine.to_dict(),
         "rng": learner.rng.bit_generator.state,
         "model": snapshot_to_bytes(learner.model),
@@ -126,7 +134,9 @@ def restore_learner(learner: Any, state: dict) -> None:
         if "day_x" in state:
             frames, note = np.asarray(state["day_frames"], dtype=float), str(state["day_note"])
             xy = np.asarray(state["day_x"], dtype=float), np.asarray(state["day_y"], dtype=float)
-            day = CarriedDay(frames, note, *xy, fitted=int(state["day_fitted"]))
+            # States written before the day's own count existed count it from the first point.
+            before = int(state.get("day_seen_before", 0))
+            day = CarriedDay(frames, note, *xy, fitted=int(state["day_fitted"]), seen_before=before)
     except (KeyError, TypeError, ValueError) as exc:
         raise SnapshotError(f"continual state is incomplete: {exc}") from None
     if model.feature_names != learner.model.feature_names:

@@ -12,8 +12,10 @@ it where it predicts the held-out points better than the model it publishes. At 
 -> 0.238 mm, A 0.125 -> 0.109 mm, four random arms 6 % closer, but the simulated paper
 campaign, streamed in an order that already spreads its poses, 0.0250 -> 0.0256 mm (5.2 %
 over its batch model; the replacement restarts the published weights' average): BENCHMARKS.md,
-"A fresh network as the stream grows". The schedule is geometric, so the fits cost a
-constant multiple of the last one.
+"A fresh network as the stream grows". On a carried day ``day_refresh_growth`` (2, on) counts
+the day's own points and the day's held-out points decide: UR10 A's model carried through
+Series B 0.362 -> 0.281 mm ("A fresh network on a carried day"). The schedule is geometric,
+so the fits cost a constant multiple of the last one.
 
 >>> [n for n in range(50, 1000, 50) if grew(n, n + 50, 50, 2.0)]
 [50, 150, 350, 750]
@@ -25,7 +27,9 @@ import math
 
 import numpy as np
 
-from learner.model import ErrorModel
+from learner.carry import MIN_DAY_POINTS
+from learner.config import ContinualConfig
+from learner.model import MIN_CALIBRATION, ErrorModel
 from learner.training import Trainer
 
 
@@ -39,6 +43,20 @@ def grew(before: int, after: int, init: int, factor: float) -> bool:
         return -1 if n < init else math.floor(math.log(n / init) / math.log(factor) + 1e-9)
 
     return level(after) > level(before)
+
+
+def refresh_due(
+    cfg: ContinualConfig, day_start: int | None, before: int, after: int, n_held_out: int
+) -> bool:
+    """Whether a learner given ``before`` -> ``after`` points, ``n_held_out`` held out, trains a
+    fresh network now: as they grow by ``refresh_growth``, or on a day carried after
+    ``day_start`` points as the day's own grow by ``day_refresh_growth``, once
+    :data:`~learner.carry.MIN_DAY_POINTS` of them are held out (fewer cannot tell the day)."""
+    if day_start is None:
+        due = grew(before, after, cfg.init, cfg.refresh_growth)
+        return due and n_held_out >= MIN_CALIBRATION
+    due = grew(before - day_start, after - day_start, cfg.init, cfg.day_refresh_growth)
+    return due and n_held_out >= MIN_DAY_POINTS
 
 
 def fresh_fit(

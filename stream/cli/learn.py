@@ -120,6 +120,8 @@ _CONTINUAL_OPTIONS = {
     "frame_prior_mm": "with --from: how far the base's frames may move on the first points (mm)",
     "moved_frame_prior_mm": "with --from: the same once those points show a moved tracker/tool",
     "day_frame_points": "with --from: fit the frames again on up to this many of the day's points",
+    "day_refresh_growth": "with --from: a fresh network each time the day's points grow by this "
+    "factor (0: never)",
 }
 
 

@@ -98,7 +98,7 @@ def test_the_days_points_keep_their_labels_and_the_old_ones_their_residual(day):
 
 def test_the_day_survives_a_restart(day):
     p, model, X, Y, _ = day
-    learner = _carried(model, X, Y)
+    learner = _carried(model, X, Y, memory=(p.X[:200], p.Y[:200]))
     for i in range(0, 100, 50):
         learner.update(X[i : i + 50], Y[i : i + 50])
     state = state_from_bytes(state_to_bytes(learner.state_dict()))
@@ -108,6 +108,7 @@ def test_the_day_survives_a_restart(day):
         np.testing.assert_array_equal(got.x, want.x)
         np.testing.assert_array_equal(got.source_frames, want.source_frames)
         assert (got.fitted, got.source_note) == (want.fitted, want.source_note)
+        assert got.seen_before == want.seen_before == 200
     for a in (learner, restarted):
         a.update(X[100:150], Y[100:150])
     np.testing.assert_array_equal(restarted.base.T_0_B, learner.base.T_0_B)
