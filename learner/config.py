@@ -266,10 +266,8 @@ class ContinualConfig:
     same on a carried day, counted on the day's own points (on by default: a stream from
     scratch never runs it; UR10 A's model carried through all of Series B 0.362 -> 0.281 mm,
     six random arms past a moved tracker 8.5 % closer, B through A 0.108 -> 0.112 mm: "A fresh
-    network on a carried day").
-    ``quarantine``
-    keeps poisoned points out and withholds updates that worsen the held-out error (a table
-    ``[learner.continual.quarantine]`` in TOML)."""
+    network on a carried day"). ``quarantine`` keeps poisoned points out and withholds updates
+    that worsen the held-out error (a table ``[learner.continual.quarantine]`` in TOML)."""
 
     memory: int = 4000
     batch: int = 100
