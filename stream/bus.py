@@ -296,14 +296,21 @@ class Worker:
                 if item is not ...:
                     self.queue.task_done()
 
-    def call(self, fn: Callable[[], None], timeout_s: float = 60.0) -> None:
-        """Run ``fn`` on the worker thread after what is queued; wait for it."""
+    def submit(self, fn: Callable[[], None]) -> threading.Event:
+        """Queue ``fn`` to run on the worker thread after what is queued; the returned event is
+        set once it has run (or was abandoned). An exception it raises is fatal, as in
+        ``handle``."""
         if self.error is not None or not self.alive:
             raise RuntimeError(f"worker {self.name} is not running ({self.error!r})")
         call = _Call(fn, threading.Event())
         self.queue.put(call)
+        return call.done
+
+    def call(self, fn: Callable[[], None], timeout_s: float = 60.0) -> None:
+        """Run ``fn`` on the worker thread after what is queued; wait for it."""
+        done = self.submit(fn)
         deadline = time.monotonic() + timeout_s
-        while not call.done.wait(0.05):
+        while not done.wait(0.05):
             if self.error is not None or not self.alive:
                 raise RuntimeError(f"worker {self.name} ended ({self.error!r})")
             if time.monotonic() > deadline:

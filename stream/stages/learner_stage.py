@@ -5,7 +5,9 @@ Snapshots are published on ``.../model`` as the framed payload of wire.codec (he
 newest model at once. With a checkpoint path, the state is written after every update and
 restored on start, and every batch the stage accepts is first appended (fsync'd) to an
 :class:`~stream.state.AcceptedLog` beside it that the next checkpoint clears; a restart replays
-the log after the checkpoint, so even a ``kill -9`` loses no accepted point.
+the log after the checkpoint, so even a ``kill -9`` loses no accepted point. The replay is the
+worker's first job, queued before the stage subscribes: batches that arrive while it trains
+(seconds; minutes for a carried day's fresh network) wait behind it instead of being lost.
 
 Batches are numbered by the window per run (``epoch``, ``seq``, ``first``); the stage keeps,
 with the checkpoint, the last ``seq`` and next point index of the :data:`KEPT_EPOCHS` window
@@ -132,8 +134,8 @@ class LearnerStage(Stage):
             self._weight = {e: s + 1 for e, (s, _) in self.core.windows.items()}
         self.trainer = TrainProcess(self._train_failed) if cfg.train_process else None
         self.core.trainer = self.trainer
-        self._replay()
         self.answer("model", self._reply_latest)
+        self.worker.submit(self._replay)  # first on the worker: what arrives meanwhile waits
         self.subscribe("batches")
 
     def _replay(self) -> None:

@@ -3,22 +3,29 @@ nothing is checkpointed yet, but every batch the learner accepted is in its fsyn
 log; the restart replays it, so the points the window batched are either learned or, for the
 batches still in flight at the kill, reported lost — none of the accepted ones is missing."""
 
+import io
 import json
 import signal
 import threading
+import time
 
+import numpy as np
 import pytest
 
+from kinematics.description import load_description
+from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from sim_sources.cell import simulate
 from sim_sources.scenarios import get_scenario
 from sim_sources.streaming import StreamingConfig
-from stream.bus import BusConfig, alive_stages, free_port, open_session
+from stream.bus import BusConfig, alive_stages, free_port, open_session, publisher
 from stream.learner_core import LearnerCore, LearnerStageConfig
+from stream.log import JsonLogger
+from stream.points import dataset_to_points
 from stream.sources import SimCellSource
-from stream.stages.learner_stage import read_checkpoint
+from stream.stages.learner_stage import LearnerStage, read_checkpoint
 from stream.state import AcceptedLog
 from tests.stream.conftest import daemon_config, kill_running, start_daemon, wait_for
-from wire import Batch, decode, key
+from wire import Batch, decode, encode, key
 
 pytestmark = pytest.mark.integration
 
@@ -99,3 +106,58 @@ def test_kill_9_during_the_first_training_loses_no_accepted_point(tmp_path):
         f"\nkill -9 in the first training: accepted {accepted} (0 checkpointed), replayed "
         f"{replayed[0]}, learned {core.n_points}, lost in flight {lost}, joined {joined}"
     )
+
+
+def test_batches_sent_while_the_accepted_log_replays_are_learned_after_it(tmp_path):
+    """A restart replays the accepted log on the stage's worker, after it has subscribed: the
+    window's batches that arrive meanwhile (a replay that trains a model takes seconds, a
+    carried day's fresh network minutes) wait in the queue and are learned after the replayed
+    ones, not lost on the bus."""
+    ds = simulate(get_scenario("paper"), 120, 33)
+    robot, port = ds.meta.robot, free_port()
+    points = dataset_to_points(ds)
+    epoch = int(time.time() * 1000) - 60_000
+    batches = [
+        Batch(seq=k, points=tuple(points[20 * k : 20 * k + 20]), epoch=epoch, first=20 * k)
+        for k in range(6)
+    ]
+    checkpoint = tmp_path / "state" / "learner.checkpoint.safetensors"
+    accepted = AcceptedLog(checkpoint.with_suffix(".accepted"))
+    for b in batches[:3]:  # accepted before a kill -9, no checkpoint yet: the restart trains
+        accepted.append(encode(b))
+    cfg = LearnerStageConfig(
+        model=ModelConfig(hidden_layers=2, neurons=64),
+        train=TrainConfig(batch_size=8, early_stop_patience=10**6, patience_lr=10**6),
+        continual=ContinualConfig(
+            memory=100, batch=10, init=40, init_epochs=150, epochs_per_update=5
+        ),
+        holdout_every=5,
+    )
+    server = open_session(BusConfig.loopback(port, listen=True))
+    client = open_session(BusConfig.loopback(port, listen=False))
+    log = io.StringIO()
+    stage: list[LearnerStage] = []
+    args = dict(
+        session=server, cell="plant", robot=robot, desc=load_description(robot), cfg=cfg,
+        T_W_0=np.asarray(ds.meta.T_W_0), checkpoint=checkpoint, logger=JsonLogger(stream=log),
+    )  # fmt: skip
+    opening = threading.Thread(target=lambda: stage.append(LearnerStage(**args)))
+    pub = publisher(client, key("plant", robot, "batches"))
+    try:
+        opening.start()
+        assert wait_for(lambda: pub.matching_status.matching, 60)
+        assert "accepted_replayed" not in log.getvalue(), "subscribed only after the replay"
+        for b in batches[3:]:
+            pub.put(encode(b))
+        opening.join(60)
+        done = lambda: all(stage[0].has_learned(epoch, b.seq) for b in batches)  # noqa: E731
+        assert wait_for(done, 120), log.getvalue()[-2000:]
+        assert '"event":"accepted_replayed"' in log.getvalue()
+        core = stage[0].core
+        assert core.n_points == 120 and stage[0].lost_points == 0
+        assert stage[0].counter.accepted == 6 and dict(stage[0].counter.dropped) == {}
+    finally:
+        failure = stage[0].close(30) if stage else None
+        client.close()
+        server.close()
+    assert failure is None
