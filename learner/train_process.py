@@ -14,7 +14,8 @@ weights, the generator's new state and the :class:`~learner.training.TrainReport
 The child runs the same operations with the same thread count and draws, so the weights are
 the ones :func:`~learner.training.train_loop` gives in the caller's process. Should the child
 die or fail, that update trains in the caller's process and a new child starts next time.
-Usage: ``model.fit(X, Y, trainer=TrainProcess())``; ``close()`` ends the child.
+Usage: ``model.fit(X, Y, trainer=TrainProcess())``; ``close()`` ends the child, and so does
+the caller's death (the child watches its parent).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import os
 import subprocess
 import sys
 import threading
+import time
 import weakref
 from collections.abc import Callable
 from dataclasses import asdict
@@ -199,9 +201,19 @@ def _answer(request: bytes) -> bytes:
     return st_save(weights, metadata={_KEY: json.dumps(asdict(report))})
 
 
+def _end_with(parent: int, poll_s: float = 1.0) -> None:
+    """End this process once ``parent`` is no longer its parent: a daemon killed mid-fit (kill
+    -9, or abandoned at its shutdown timeout) leaves no child training on for minutes."""
+    while os.getppid() == parent:
+        time.sleep(poll_s)
+    os._exit(1)
+
+
 def main() -> None:
-    """The child: answer requests on stdin until it closes. Its own stdout carries only the
-    replies (anything a library prints goes to stderr)."""
+    """The child: answer requests on stdin until it closes, or end within a second of its
+    parent. Its own stdout carries only the replies (anything a library prints goes to
+    stderr)."""
+    threading.Thread(target=_end_with, args=(os.getppid(),), daemon=True).start()
     replies = os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)
     while (request := _read_frame(sys.stdin.buffer)) is not None:

@@ -5,7 +5,11 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
 import threading
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -120,3 +124,42 @@ def test_close_ends_the_child_and_later_fits_train_here():
     here.fit(X, Y, max_epochs=5)
     there.fit(X, Y, max_epochs=5, trainer=trainer)
     assert _same_weights(here, there) and trainer.pid is None and trainer.failures == 0
+
+
+def _running(pid: int) -> bool:
+    """Whether process ``pid`` exists and is not a zombie (a container's init may not reap)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def test_a_child_ends_when_its_caller_is_killed_mid_fit(tmp_path):
+    """A caller killed with -9 while its child trains (a daemon killed mid-fit) leaves no child
+    training on: it ends within a few seconds, not when its fit would have ended."""
+    script = tmp_path / "caller.py"
+    script.write_text(
+        "import sys\n"
+        "from tests.learner.test_train_process import TrainProcess, _model, _points\n"
+        "trainer = TrainProcess()\n"
+        "print(trainer.pid, flush=True)\n"
+        "X, Y = _points(200, 4)\n"
+        "_model().fit(X, Y, max_epochs=10**6, val_fraction=0.0, trainer=trainer)\n"
+    )
+    root = Path(__file__).resolve().parents[2]
+    env = dict(os.environ, PYTHONPATH=str(root))
+    caller = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, env=env)
+    try:
+        child = int(caller.stdout.readline())
+        time.sleep(3.0)  # the fit is under way in the child
+        assert _running(child)
+        caller.kill()
+        caller.wait(10)
+        deadline = time.monotonic() + 15
+        while _running(child) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not _running(child), "the child trains on after its caller died"
+    finally:
+        caller.kill()
+        caller.stdout.close()
