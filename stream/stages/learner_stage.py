@@ -7,7 +7,7 @@ restored on start, and every batch the stage accepts is first appended (fsync'd)
 :class:`~stream.state.AcceptedLog` beside it that the next checkpoint clears; a restart replays
 the log after the checkpoint, so even a ``kill -9`` loses no accepted point. The replay is the
 worker's first job, queued before the stage subscribes: batches that arrive while it trains
-(seconds; minutes for a carried day's fresh network) wait behind it instead of being lost.
+(seconds; about a minute for a carried day's fresh network) wait behind it, not lost.
 
 Batches are numbered by the window per run (``epoch``, ``seq``, ``first``); the stage keeps,
 with the checkpoint, the last ``seq`` and next point index of the :data:`KEPT_EPOCHS` window
