@@ -111,8 +111,8 @@ def test_kill_9_during_the_first_training_loses_no_accepted_point(tmp_path):
 def test_batches_sent_while_the_accepted_log_replays_are_learned_after_it(tmp_path):
     """A restart replays the accepted log on the stage's worker, after it has subscribed: the
     window's batches that arrive meanwhile (a replay that trains a model takes seconds, a
-    carried day's fresh network about a minute) wait in the queue and are learned after the replayed
-    ones, not lost on the bus."""
+    carried day's fresh network about a minute) wait in the queue and are learned after the
+    replayed ones, not lost on the bus."""
     ds = simulate(get_scenario("paper"), 120, 33)
     robot, port = ds.meta.robot, free_port()
     points = dataset_to_points(ds)
