@@ -140,7 +140,6 @@ def test_a_child_ends_when_its_caller_is_killed_mid_fit(tmp_path):
     training on: it ends within a few seconds, not when its fit would have ended."""
     script = tmp_path / "caller.py"
     script.write_text(
-        "import sys\n"
         "from tests.learner.test_train_process import TrainProcess, _model, _points\n"
         "trainer = TrainProcess()\n"
         "print(trainer.pid, flush=True)\n"
