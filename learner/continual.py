@@ -41,6 +41,7 @@ from learner.carry import (
     CarriedDay,
     carried_frames,
     held_out_labels,
+    hold_day,
     position_factor,
     scale_needed,
     unverified,
@@ -48,7 +49,7 @@ from learner.carry import (
 from learner.config import ContinualConfig
 from learner.conformal import adapt_log_scale
 from learner.continual_base import REFINED, doubled, due, memory_base, refined_base, status
-from learner.continual_records import Memory, UpdateMetrics, checked_batch
+from learner.continual_records import Memory, UpdateMetrics, checked_batch, memory_mm
 from learner.continual_state import (  # noqa: F401
     STATE_SCHEMA,
     learner_state,
@@ -232,7 +233,9 @@ class ContinualLearner:
         """Train on and publish ``new`` where it predicts the held-out set better."""
         cal = (self._cal_x, self._cal_y)
         if holdout_mm(new, *cal) < holdout_mm(self.model, *cal):
-            self.trained, self.model = new, copy_model(new)
+            mark, self.trained, self.model = self.model.unverified, new, copy_model(new)
+            if self.day_scale is not None:  # a carried day: its mark kept until spread
+                hold_day(self.model, *cal, mark)
             self.model.interval_scale = self.model.interval_scale * np.exp(self.aci_log_scale)
             self.version += 1
 
@@ -265,10 +268,11 @@ class ContinualLearner:
         (:func:`learner.carry.carried_frames`), empty the held-out set (another day's) and fit the
         carried network's gain on these points (:meth:`ErrorModel.weigh_residual`); returns it.
         Gain and scale are re-fitted on the day's held-out points once :data:`MIN_DAY_POINTS`
-        are there. Until then the scale is the model's times its ``drift_scale`` (not again on a
-        young day), or, where the frames moved or these points need a far wider one, no narrower
-        than they show (:func:`~learner.carry.held_out_labels`) and ``unverified``
-        (:func:`learner.carry.unverified`). Its points refit its frames (:class:`CarriedDay`)."""
+        are there (its mark kept until they are spread: :func:`~learner.carry.hold_day`). Until
+        then the scale is the model's times its ``drift_scale`` (not again on a young day), or,
+        where the frames moved or these points need a far wider one, no narrower than they show
+        (:func:`~learner.carry.held_out_labels`) and ``unverified``
+        (:func:`~learner.carry.unverified`). Its points refit its frames (:class:`CarriedDay`)."""
         X, Y = checked_batch(X, Y, self.model.spec.n_features)
         needed, miss = scale_needed(self.model, X, Y)
         young = self.day_scale is not None and len(self._cal_x) < MIN_DAY_POINTS
@@ -350,14 +354,14 @@ class ContinualLearner:
             ):
                 published.lerp_(trained, self.cfg.average)
         self.model.envelope = self.trained.envelope
-        carried = self.day_scale is not None
+        carried, cal = self.day_scale is not None, (self._cal_x, self._cal_y)
         if carried and len(self._cal_x) < MIN_DAY_POINTS:  # a young day: the scale it came with
             self.model.interval_scale = self.day_scale.copy()
         elif len(self._cal_x) >= MIN_CALIBRATION:
             if carried:
-                self.trained.residual_gain = self.model.weigh_residual(self._cal_x, self._cal_y)
-                self.model.unverified = ""  # the day's own held-out points calibrate it now
-            self.model.calibrate(self._cal_x, self._cal_y)
+                self.trained.residual_gain = self.model.weigh_residual(*cal)
+                hold_day(self.model, *cal, self.model.unverified)
+            self.model.calibrate(*cal)
         else:
             self.model.interval_scale = self.trained.interval_scale.copy()
         self.model.interval_scale = self.model.interval_scale * np.exp(self.aci_log_scale)
@@ -371,11 +375,8 @@ class ContinualLearner:
         err: np.ndarray | None = None,
     ) -> UpdateMetrics:
         """This step's :class:`UpdateMetrics` (``err``: the new points' errors before it, m)."""
-        train_mm = np.nan
-        if self.trained.is_fitted and len(self._mem_x):
-            res = self.trained.predict(self._mem_x).gamma - self._mem_y
-            train_mm = float(np.linalg.norm(res[:, :3], axis=1).mean() * 1e3)
         counts = (self.version, self.n_seen, n_new, len(self._mem_x), kept)
+        train_mm = memory_mm(self.trained, self._mem_x, self._mem_y)
         return UpdateMetrics.of(*counts, report, dt, err, train_mm)
 
     def state_dict(self) -> dict:

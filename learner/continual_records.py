@@ -4,11 +4,15 @@ and its replay memory."""
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from kinematics.errors import DatasetError
 from learner.training import TrainReport
+
+if TYPE_CHECKING:
+    from learner.model import ErrorModel
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -66,6 +70,13 @@ class UpdateMetrics:
             train_mean_mm=train_mean_mm,
             skipped_steps=0 if report is None else report.skipped_steps,
         )
+
+
+def memory_mm(model: ErrorModel, X: np.ndarray, Y: np.ndarray) -> float:
+    """Mean position error (mm) of ``model`` on its memory ``X, Y``: NaN before either."""
+    if not (model.is_fitted and len(X)):
+        return float("nan")
+    return float(np.linalg.norm((model.predict(X).gamma - Y)[:, :3], axis=1).mean() * 1e3)
 
 
 @dataclass(frozen=True)

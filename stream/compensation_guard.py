@@ -11,7 +11,7 @@ more than ``max_residual_m``), ``corrected_limits`` (the corrected command leave
 ``envelope_margin_k`` past the temperatures, :mod:`learner.envelope`: its base and network
 extrapolate there and its intervals do not know it), ``unverified`` (a model carried into a
 day whose frames moved or whose first points its intervals missed, and which its own held-out
-points have not yet checked:
+points, spread over the workspace, have not yet checked:
 :attr:`learner.model.ErrorModel.unverified`). A refusal before solving
 answers with the uncorrected command and the error predicted there (zeros when even that fails).
 

@@ -10,7 +10,7 @@ import pytest
 from kinematics.errors import ConfigError
 from kinematics.model import RobotModel
 from learner.base import identify_base
-from learner.carry import CarriedDay, reidentify_frames
+from learner.carry import CarriedDay, reidentify_frames, spread
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from learner.continual import MIN_DAY_POINTS, ContinualLearner, state_from_bytes, state_to_bytes
 from learner.model import ErrorModel
@@ -146,8 +146,9 @@ def test_a_day_limit_of_0_keeps_the_first_points_frames(day):
 
 def test_a_day_whose_frames_moved_is_unverified_until_its_own_points_check_it(day):
     """The carry's scale comes from the day's first points of one side; compensation is not to
-    trust it (``ErrorModel.unverified``, in the snapshot) until ``MIN_DAY_POINTS`` of the day's
-    points are held out and calibrate it. A day whose frames held is verified from the start."""
+    trust it (``ErrorModel.unverified``, in the snapshot) until at least ``MIN_DAY_POINTS`` of
+    the day's points, spread over the workspace, are held out and calibrate it. A day whose
+    frames held is verified from the start."""
     p, model, X, Y, _ = day
     learner = _carried(model, X, Y)
     assert learner.model.unverified.startswith("the frames moved on this day (30 points)")
@@ -158,6 +159,11 @@ def test_a_day_whose_frames_moved_is_unverified_until_its_own_points_check_it(da
     assert learner.model.unverified
     learner.update(X[50:100], Y[50:100])
     assert len(learner.state_dict()["holdout_x"]) == MIN_DAY_POINTS
+    assert learner.model.unverified  # 20 points cannot identify the geometry: not spread yet
+    for i in range(100, 300, 50):
+        learner.update(X[i : i + 50], Y[i : i + 50])
+    state = learner.state_dict()
+    assert spread(p.spec, state["holdout_x"], state["holdout_y"])
     assert learner.model.unverified == ""
     assert snapshot_from_bytes(snapshot_to_bytes(learner.model)).unverified == ""
     same_day = ContinualLearner(snapshot_from_bytes(snapshot_to_bytes(model)), CFG)
