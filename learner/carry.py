@@ -273,7 +273,7 @@ def hold_day(model: ErrorModel, X: np.ndarray, Y: np.ndarray, mark: str) -> None
     """Keep the carry's ``mark`` on ``model`` (its ``unverified``) until the day's held-out
     points ``X, Y`` are :func:`spread` over the workspace; clear it then. Points of one region
     cannot check the intervals elsewhere: UR10 B's model carried onto A (frames moved) had
-    its mark cleared at A's 20th held-out point, and 40-77 % of the answers it then trusted
+    its mark cleared at A's 20th held-out point, and 40-91 % of the answers it then trusted
     over A's first 800 points (condition 3.4e3-4.4e3) lay inside their 90 % intervals
     (BENCHMARKS.md, "A marked day stays marked")."""
     model.unverified = "" if spread(model.spec, X, Y) else mark
