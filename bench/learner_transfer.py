@@ -23,9 +23,17 @@ points up to its first pause of more than ``--gap-h`` hours (recorded order; UR1
 its first 5,252 points, 18 h, then a 6.5 h pause) and the rest, both ways: another day of the
 same cell, the tracker not set up anew.
 
+``--whole-day N`` streams the new series' first ``N`` training points after the carry instead:
+the carry on its first ``init`` points (``ContinualConfig``), then one update per ``batch`` of
+them from the first, as ``robocal continual --from`` does. After each update: the test mean, the
+90 % coverage, the untrusted share and the coverage of the trusted answers; the coverage of the
+update's own batch, scored before it was learned (prequential); and the coverage of the test
+points the stream has already passed in recorded order and of those still ahead of it.
+
 
     .venv/bin/python bench/learner_transfer.py --a /tmp/a.parquet --b /tmp/b.parquet --seeds 0 1 2
     .venv/bin/python bench/learner_transfer.py --days /tmp/a.parquet --seeds 0 1 2
+    .venv/bin/python bench/learner_transfer.py --seeds 0 --whole-day 1800
 """
 
 import argparse
@@ -47,6 +55,7 @@ from learner.config import (
 )
 from learner.continual import load_learner
 from learner.metrics import accuracy_report, trust
+from learner.model import ErrorModel
 from learner.workflow import prepare, train_on_dataset
 from stream.compensation import CompensationConfig
 from stream.reports.learner import write_trained
@@ -55,6 +64,26 @@ from stream.reports.learner import write_trained
 EPISTEMIC_LIMIT_MM = CompensationConfig().epistemic_limit_mm
 
 STEPS = (0, 10, 25, 50, 100)
+
+
+def source_model(
+    source: str, seed: int, epochs: int, folder: Path, base: str
+) -> tuple[Path, ErrorModel, float]:
+    """The model of ``source`` (trained on ``base``, ``epochs``, ``seed``), cached in
+    ``folder``: its file, the model and its test mean (mm)."""
+    tag = "" if base == DEFAULT_BASE else f"_{Path(base).parent.name}_{Path(base).stem}"
+    model_path = folder / f"{Path(source).stem}{tag}_seed{seed}_e{epochs}.safetensors"
+    if model_path.is_file():
+        model = load_learner(model_path, ContinualConfig(seed=seed)).model
+        return model_path, model, model.metrics["mean_mm"]
+    result = train_on_dataset(
+        read_dataset(source),
+        seed=seed,
+        train_cfg=TrainConfig(max_epochs=epochs, seed=seed),
+        base=base,
+    )
+    write_trained(result, model_path)
+    return model_path, result.model, result.test.mean_mm
 
 
 def transfer(
@@ -69,20 +98,9 @@ def transfer(
 ) -> dict:
     """One source model (trained on ``base``, cached in ``folder``) carried to ``target``, on
     the new series' points in ``order`` (``recorded`` or ``spread``)."""
-    tag = "" if base == DEFAULT_BASE else f"_{Path(base).parent.name}_{Path(base).stem}"
-    model_path = folder / f"{Path(source).stem}{tag}_seed{seed}_e{epochs}.safetensors"
-    src = read_dataset(source)
-    if model_path.is_file():
-        model = load_learner(model_path, ContinualConfig(seed=seed)).model
-        source_mm = model.metrics["mean_mm"]
-    else:
-        result = train_on_dataset(
-            src, seed=seed, train_cfg=TrainConfig(max_epochs=epochs, seed=seed), base=base
-        )
-        write_trained(result, model_path)
-        model, source_mm = result.model, result.test.mean_mm
+    model_path, model, source_mm = source_model(source, seed, epochs, folder, base)
     cfg = ContinualConfig(seed=seed, frame_prior_mm=priors[0], moved_frame_prior_mm=priors[1])
-    p_src = prepare(src, test_fraction=0.1, seed=seed, spec=model.spec)
+    p_src = prepare(read_dataset(source), test_fraction=0.1, seed=seed, spec=model.spec)
     epi_src = np.sqrt(model.predict(p_src.X[p_src.test]).epistemic()[:, :3]).mean()
     p = prepare(read_dataset(target), test_fraction=0.1, seed=0, spec=model.spec)
     stream = np.sort(p.train)
@@ -131,6 +149,44 @@ def transfer(
     return {"source_test_mm": source_mm, "steps": rows}
 
 
+def whole_day(
+    source: str, target: str, seed: int, epochs: int, folder: Path, base: str, priors: tuple, n: int
+) -> list[dict]:
+    """``source``'s model carried to ``target`` and streamed through its first ``n`` training
+    points in recorded order (``--whole-day``): one row per update."""
+    model_path, _, _ = source_model(source, seed, epochs, folder, base)
+    cfg = ContinualConfig(seed=seed, frame_prior_mm=priors[0], moved_frame_prior_mm=priors[1])
+    learner = load_learner(model_path, cfg)
+    p = prepare(read_dataset(target), test_fraction=0.1, seed=0, spec=learner.model.spec)
+    stream, test = np.sort(p.train)[:n], np.sort(p.test)
+    X, Y, Xte, Yte = p.X[stream], p.Y[stream], p.X[test], p.Y[test]
+
+    def covered(m: np.ndarray) -> float:
+        return accuracy_report(learner.model, Xte[m], Yte[m]).coverage_90 if m.any() else np.nan
+
+    learner.carry(X[: cfg.init], Y[: cfg.init])
+    rows = []
+    for i in range(0, len(X), cfg.batch):
+        batch = slice(i, i + cfg.batch)
+        prequential = accuracy_report(learner.model, X[batch], Y[batch]).coverage_90
+        learner.update(X[batch], Y[batch])
+        untrusted = trust(learner.model, Xte, EPISTEMIC_LIMIT_MM).untrusted
+        passed = test <= stream[min(i + cfg.batch, len(X)) - 1]
+        rows.append(
+            {
+                "points": min(i + cfg.batch, len(X)),
+                "mean_mm": accuracy_report(learner.model, Xte, Yte).mean_mm,
+                "coverage_90": covered(np.ones(len(test), dtype=bool)),
+                "untrusted_share": float(untrusted.mean()),
+                "coverage_90_trusted": covered(~untrusted),
+                "coverage_90_prequential": prequential,
+                "coverage_90_passed": covered(passed),
+                "coverage_90_ahead": covered(~passed),
+            }
+        )
+    return rows
+
+
 def split_days(path: str, folder: Path, gap_h: float) -> tuple[str, str]:
     """The series at ``path`` cut at its first pause of more than ``gap_h`` hours between two
     points in recorded order, written to ``folder``: the day before, and the days after."""
@@ -167,6 +223,7 @@ def main() -> None:
     ap.add_argument("--order", choices=("recorded", "spread"), default="recorded")
     ap.add_argument("--days", help="one series: carry its first day to the rest and back")
     ap.add_argument("--gap-h", type=float, default=4.0, help="--days: the pause that ends a day")
+    ap.add_argument("--whole-day", type=int, help="stream this many of the new series' points")
     args = ap.parse_args()
     torch.set_num_threads(1)
     out = {}
@@ -177,6 +234,16 @@ def main() -> None:
         a, b = split_days(args.days, folder, args.gap_h) if args.days else (args.a, args.b)
         directions = {"A->B": (a, b, args.base_a), "B->A": (b, a, args.base_b)}
         for name, (src, dst, base) in directions.items():
+            if args.whole_day:
+                days = [
+                    whole_day(src, dst, s, args.max_epochs, folder, base, priors, args.whole_day)
+                    for s in args.seeds
+                ]
+                out[name] = [
+                    {key: _mean([d[i][key] for d in days]) for key in days[0][i]}
+                    for i in range(len(days[0]))
+                ]
+                continue
             runs = [
                 transfer(src, dst, s, args.max_epochs, folder, base, priors, args.order)
                 for s in args.seeds

@@ -276,7 +276,7 @@ def hold_day(model: ErrorModel, X: np.ndarray, Y: np.ndarray, mark: str) -> None
     its mark cleared at A's 20th held-out point, and 40-91 % of the answers it then trusted
     over A's first 800 points (condition 3.4e3-4.4e3) lay inside their 90 % intervals
     (BENCHMARKS.md, "A marked day stays marked")."""
-    model.unverified = "" if spread(model.spec, X, Y) else mark
+    model.unverified = mark if mark and not spread(model.spec, X, Y) else ""
 
 
 @dataclass(frozen=True)
