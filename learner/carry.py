@@ -32,10 +32,9 @@ from kinematics.calibration import (
 from kinematics.description import RobotDescription
 from kinematics.effects import Conditions, Effect, Perturbation
 from kinematics.errors import IdentifiabilityError
-from kinematics.identification.conditions import cell_description, observations_from_dataset
 from kinematics.identification.fitting import FitResult, fit_effects, jacobian, tool_motion_rms
 from kinematics.model import RobotModel
-from learner.base import AUTO_MAX_CONDITION, PhysicsBase, measured_dataset
+from learner.base import AUTO_MAX_CONDITION, PhysicsBase, nominal_base
 from learner.config import FRAME_PRIOR_MM
 from learner.features import FeatureSpec
 from learner.model import ErrorModel
@@ -260,10 +259,9 @@ def spread(spec: FeatureSpec, X: np.ndarray, Y: np.ndarray) -> bool:
     identify the whole geometry, one point per parameter at least, with a condition number at
     most :data:`~learner.base.AUTO_MAX_CONDITION` (the ``auto`` base's rule). A day's first
     points often lie in one region (UR10 Series A's first 800: condition 3.4e3-4.4e3)."""
-    ds = measured_dataset(spec, X, Y)
-    desc = cell_description(spec.description, ds)
+    nominal = nominal_base(spec.description)
     try:
-        ident = identify(RobotModel(desc), observations_from_dataset(ds, desc), CalibrationConfig())
+        ident = identify(nominal.model, nominal.observations(spec, X, Y), CalibrationConfig())
     except IdentifiabilityError:
         return False
     return ident.condition_number <= AUTO_MAX_CONDITION
