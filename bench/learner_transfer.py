@@ -27,8 +27,10 @@ same cell, the tracker not set up anew.
 the carry on its first ``init`` points (``ContinualConfig``), then one update per ``batch`` of
 them from the first, as ``robocal continual --from`` does. After each update: the test mean, the
 90 % coverage, the untrusted share and the coverage of the trusted answers; the coverage of the
-update's own batch, scored before it was learned (prequential); and the coverage of the test
-points the stream has already passed in recorded order and of those still ahead of it.
+update's own batch, scored before it was learned (prequential), with the share of it
+compensation would have trusted then and their coverage (what a line asking then got); and the
+coverage of the test points the stream has already passed in recorded order and of those still
+ahead of it.
 
 
     .venv/bin/python bench/learner_transfer.py --a /tmp/a.parquet --b /tmp/b.parquet --seeds 0 1 2
@@ -168,7 +170,12 @@ def whole_day(
     rows = []
     for i in range(0, len(X), cfg.batch):
         batch = slice(i, i + cfg.batch)
-        prequential = accuracy_report(learner.model, X[batch], Y[batch]).coverage_90
+        Xb, Yb = X[batch], Y[batch]
+        prequential = accuracy_report(learner.model, Xb, Yb).coverage_90
+        live = ~trust(learner.model, Xb, EPISTEMIC_LIMIT_MM).untrusted
+        live_covered = (
+            accuracy_report(learner.model, Xb[live], Yb[live]).coverage_90 if live.any() else np.nan
+        )
         learner.update(X[batch], Y[batch])
         untrusted = trust(learner.model, Xte, EPISTEMIC_LIMIT_MM).untrusted
         passed = test <= stream[min(i + cfg.batch, len(X)) - 1]
@@ -180,6 +187,8 @@ def whole_day(
                 "untrusted_share": float(untrusted.mean()),
                 "coverage_90_trusted": covered(~untrusted),
                 "coverage_90_prequential": prequential,
+                "prequential_trusted_share": float(live.mean()),
+                "coverage_90_prequential_trusted": live_covered,
                 "coverage_90_passed": covered(passed),
                 "coverage_90_ahead": covered(~passed),
             }

@@ -50,14 +50,8 @@ from learner.config import ContinualConfig
 from learner.conformal import adapt_log_scale
 from learner.continual_base import REFINED, doubled, due, memory_base, refined_base, status
 from learner.continual_records import Memory, UpdateMetrics, checked_batch, memory_mm
-from learner.continual_state import (  # noqa: F401
-    STATE_SCHEMA,
-    learner_state,
-    restore_learner,
-    state_from_bytes,
-    state_path,
-    state_to_bytes,
-)
+from learner.continual_state import learner_state, restore_learner, state_from_bytes, state_path
+from learner.metrics import interval_coverage
 from learner.model import MIN_CALIBRATION, ErrorModel
 from learner.quarantine import QuarantineState, holdout_mm, model_residuals, screen, withhold
 from learner.refresh import fresh_fit, refresh_due
@@ -158,7 +152,7 @@ class ContinualLearner:
         if self.version == 0 or not len(X_new):  # nothing to learn yet
             self.n_seen = seen
             return replace(self._metrics(n_in, 0, None, 0.0), **out)
-        self._adapt_intervals(X_new, Y_new)
+        covered = self._adapt_intervals(X_new, Y_new)
         n_new = len(X_new)
         held = np.zeros(n_new, dtype=bool)
         held[self.rng.permutation(n_new)[: int(self.cfg.holdout * n_new)]] = True
@@ -197,7 +191,9 @@ class ContinualLearner:
         batch_err = np.linalg.norm((pred - pool_y)[-len(X_new) :, :3], axis=1)
         dt = time.perf_counter() - start
         m = self._metrics(len(X_new), new_kept, report, dt, batch_err)
-        return replace(m, withheld=withheld, holdout_mm=holdout_mm, **out)
+        return replace(
+            m, withheld=withheld, holdout_mm=holdout_mm, batch_coverage_90=covered, **out
+        )
 
     def _refine_base(self, before: int, X: np.ndarray, Y: np.ndarray, all_kept: bool) -> None:
         """Identify the base again from every trained point ``X, Y`` each time they double, while
@@ -332,14 +328,18 @@ class ContinualLearner:
         self.rebase(base, keep=day.holds(self._mem_x))
         self.day = replace(day, fitted=len(day.x))
 
-    def _adapt_intervals(self, X: np.ndarray, Y: np.ndarray) -> None:
+    def _adapt_intervals(self, X: np.ndarray, Y: np.ndarray) -> float:
         """Adaptive conformal inference on the interval scale, point by point in stream order
-        (:mod:`learner.conformal`): misses widen the intervals, points inside narrow them."""
-        if self.cfg.aci_rate == 0 or not self.model.is_fitted:
-            return
-        c, (lo, hi) = self.cfg, self.model.predict(X).interval(self.cfg.aci_level)
-        excess = np.abs(2.0 * Y - lo - hi) / (hi - lo)
-        self.aci_log_scale = adapt_log_scale(self.aci_log_scale, excess, c.aci_rate, c.aci_level)
+        (:mod:`learner.conformal`): misses widen the intervals, points inside narrow them.
+        Returns the published model's 90 % coverage of the points before it learned them."""
+        c, ev = self.cfg, self.model.predict(X)
+        if c.aci_rate:
+            lo, hi = ev.interval(c.aci_level)
+            excess = np.abs(2.0 * Y - lo - hi) / (hi - lo)
+            self.aci_log_scale = adapt_log_scale(
+                self.aci_log_scale, excess, c.aci_rate, c.aci_level
+            )
+        return interval_coverage(ev, Y, 0.90)
 
     def _publish(self) -> None:
         """Move the published weights towards the trained ones by ``average`` (the envelope

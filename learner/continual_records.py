@@ -3,6 +3,7 @@ and its replay memory."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING
 
@@ -20,6 +21,9 @@ class UpdateMetrics:
     """What one update did. Errors are position-error norms in mm: ``batch_*`` of the new
     points before training (prequential), ``train_*`` of the memory after training,
     ``holdout_mm`` the published model's median on the held-out set (NaN without one).
+    ``batch_coverage_90`` is the share of the new points' position components inside the 90 %
+    intervals the published model gave them before it learned them: what a line that asked it
+    then got (NaN while there is no model).
     ``quarantined`` counts this step's points kept out; ``withheld`` says the gate kept the
     last published model."""
 
@@ -37,6 +41,7 @@ class UpdateMetrics:
     quarantined: int = 0
     withheld: bool = False
     holdout_mm: float = float("nan")
+    batch_coverage_90: float = float("nan")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -70,6 +75,30 @@ class UpdateMetrics:
             train_mean_mm=train_mean_mm,
             skipped_steps=0 if report is None else report.skipped_steps,
         )
+
+
+def prequential(updates: Sequence[UpdateMetrics]) -> dict:
+    """A stream's own check of its answers: each update's new points scored before it learned
+    them, pooled over ``updates`` by the points each learned (updates that scored none left
+    out): mean position error (mm), 90 % coverage, and how many points that is. With
+    ``--test-fraction 0`` there is no test set, and this is the honest figure a day can give.
+
+    >>> from dataclasses import replace
+    >>> a = UpdateMetrics.of(2, 200, 90, 90, 90, None, 0.1, np.full(90, 1e-3), 0.5)
+    >>> b = UpdateMetrics.of(3, 300, 30, 120, 30, None, 0.1, np.full(30, 3e-3), 0.5)
+    >>> p = prequential([replace(a, batch_coverage_90=1.0), replace(b, batch_coverage_90=0.6)])
+    >>> p["n_points"], round(p["mean_mm"], 3), round(p["coverage_90"], 3)
+    (120, 1.5, 0.9)
+    """
+    scored = [m for m in updates if m.n_new and np.isfinite(m.batch_coverage_90)]
+    n = np.array([m.n_new for m in scored], dtype=float)
+    if not n.sum():
+        return {"n_points": 0, "mean_mm": float("nan"), "coverage_90": float("nan")}
+    return {
+        "n_points": int(n.sum()),
+        "mean_mm": float(np.average([m.batch_mean_mm for m in scored], weights=n)),
+        "coverage_90": float(np.average([m.batch_coverage_90 for m in scored], weights=n)),
+    }
 
 
 def memory_mm(model: ErrorModel, X: np.ndarray, Y: np.ndarray) -> float:

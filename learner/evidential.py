@@ -82,7 +82,8 @@ def combine_members(
     """
     if members == 1:
         return gamma, nu, alpha, beta
-    g, n, a, b = (t.reshape(t.shape[0], members, -1) for t in (gamma, nu, alpha, beta))
+    shape = (gamma.shape[0], members, gamma.shape[1] // members)  # explicit: also for 0 rows
+    g, n, a, b = (t.reshape(shape) for t in (gamma, nu, alpha, beta))
     alea = (b / (a - 1.0)).mean(dim=1)
     gamma_c = g.mean(dim=1)
     # The spread written out: Tensor.var over a middle axis is ~6 × slower for 1,000 rows.

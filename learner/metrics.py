@@ -14,6 +14,7 @@ import numpy as np
 from kinematics.error_stats import ErrorStats
 from kinematics.transforms import ARCMIN_PER_RAD
 from learner.envelope import MARGIN_DEG, MARGIN_K, outside
+from learner.evidential import Evidential
 from learner.features import temperature_readings
 from learner.model import ErrorModel
 
@@ -65,11 +66,7 @@ def accuracy_report(
     pos = np.linalg.norm(res[:, :3], axis=1) * 1e3
     rot = np.linalg.norm(res[:, 3:], axis=1) * ARCMIN_PER_RAD
     base = float(np.linalg.norm(Y0[:, :3], axis=1).mean() * 1e3)
-    coverage = {}
-    for level in LEVELS:
-        lo, hi = ev.interval(level)
-        inside = (Y[:, :3] >= lo[:, :3]) & (Y[:, :3] <= hi[:, :3])
-        coverage[level] = float(inside.mean())
+    coverage = {level: interval_coverage(ev, Y, level) for level in LEVELS}
     lo, hi = ev.interval(0.90)
     nll_mm = ev.nll(Y)[:, :3] + np.log(1e3)  # density per mm instead of per m
     return AccuracyReport.of(
@@ -83,6 +80,14 @@ def accuracy_report(
         interval_width_90_mm=float((hi - lo)[:, :3].mean() * 1e3),
         nll=float(nll_mm.mean()),
     )
+
+
+def interval_coverage(ev: Evidential, Y: np.ndarray, level: float) -> float:
+    """The share of the position components of labels ``Y`` (m) inside the ``level`` intervals
+    of prediction ``ev`` (NaN without points)."""
+    lo, hi = ev.interval(level)
+    inside = (Y[:, :3] >= lo[:, :3]) & (Y[:, :3] <= hi[:, :3])
+    return float(inside.mean()) if inside.size else float("nan")
 
 
 def past_envelope(

@@ -157,6 +157,7 @@ class Continual(Command):
 
         from kinematics.dataset import read_dataset
         from learner.continual import load_learner
+        from learner.continual_records import prequential
         from learner.workflow import continual_on_dataset
         from stream.reports.learner import write_continual
 
@@ -188,6 +189,11 @@ class Continual(Command):
         text = (
             f"model -> {args.out}; curve -> {csv_path}, {png_path} ({len(result.updates)} "
             f"updates, {result.total_time_s:.1f} s training)"
+        )
+        out["prequential"] = preq = prequential(result.updates)
+        text += (
+            f"\nprequential (each batch before it was learned, {preq['n_points']} points): "
+            f"mean {preq['mean_mm']:.3f} mm, 90% coverage {preq['coverage_90']:.2f}"
         )
         if result.day_past_envelope is not None:
             out["day_past_envelope"] = result.day_past_envelope

@@ -8,7 +8,7 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
-from learner.continual import state_path, state_to_bytes
+from learner.continual_state import state_path, state_to_bytes
 from learner.experiment import StudyResult
 from learner.snapshot import atomic_write_bytes, save_snapshot
 from learner.workflow import ContinualResult, TrainResult

@@ -12,7 +12,8 @@ from kinematics.model import RobotModel
 from learner.base import identify_base
 from learner.carry import CarriedDay, reidentify_frames, spread
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
-from learner.continual import MIN_DAY_POINTS, ContinualLearner, state_from_bytes, state_to_bytes
+from learner.continual import MIN_DAY_POINTS, ContinualLearner
+from learner.continual_state import state_from_bytes, state_to_bytes
 from learner.model import ErrorModel
 from learner.snapshot import snapshot_from_bytes, snapshot_to_bytes
 from learner.workflow import prepare

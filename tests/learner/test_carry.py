@@ -6,7 +6,8 @@ import pytest
 
 from learner.carry import MISS_EVIDENCE, position_factor, spread
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
-from learner.continual import MIN_DAY_POINTS, ContinualLearner, state_from_bytes, state_to_bytes
+from learner.continual import MIN_DAY_POINTS, ContinualLearner
+from learner.continual_state import state_from_bytes, state_to_bytes
 from learner.metrics import accuracy_report
 from learner.model import ErrorModel
 from learner.snapshot import snapshot_from_bytes, snapshot_to_bytes

@@ -5,7 +5,8 @@ import pytest
 
 from kinematics.errors import ConfigError, DatasetError, SnapshotError
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
-from learner.continual import ContinualLearner, state_from_bytes, state_to_bytes
+from learner.continual import ContinualLearner
+from learner.continual_state import state_from_bytes, state_to_bytes
 from learner.features import FeatureSpec
 from learner.model import ErrorModel
 
@@ -190,6 +191,28 @@ def test_held_out_points_calibrate_and_are_never_trained(two_regions):
     back = _learner("full", memory=200, epochs=2, holdout=0.2)
     back.load_state(state_from_bytes(state_to_bytes(state)))
     np.testing.assert_array_equal(back.state_dict()["holdout_x"], held)
+
+
+def test_each_update_reports_how_its_batch_was_covered_before_it_was_learned(two_regions):
+    from learner.continual_records import prequential
+    from learner.metrics import accuracy_report
+    from learner.snapshot import copy_model
+
+    X, Y, _, _ = two_regions
+    learner = _learner("max_error", memory=200, epochs=10, holdout=0.2)
+    learner.initialize(X[:25], Y[:25])
+    steps, expected = [], []
+    for i in range(25, 200, 25):
+        published = copy_model(learner.model)  # what a line asking now would be answered by
+        expected.append(accuracy_report(published, X[i : i + 25], Y[i : i + 25]).coverage_90)
+        steps.append(learner.update(X[i : i + 25], Y[i : i + 25]))
+    np.testing.assert_allclose([m.batch_coverage_90 for m in steps], expected)
+    first, second = np.mean(expected[:3]), expected[3]  # region two starts at point 100
+    assert second < first  # a region never learned is covered worse, and the record says so
+    pooled = prequential(steps)
+    assert pooled["n_points"] == 7 * 20  # the points each update learned, its held-out 5 apart
+    assert pooled["coverage_90"] == pytest.approx(np.mean(expected))  # equal batches
+    assert np.isnan(learner.update(X[:0], Y[:0]).batch_coverage_90)  # nothing scored
 
 
 def test_bad_batches_and_states_raise():

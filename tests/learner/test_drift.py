@@ -8,7 +8,8 @@ import pytest
 from kinematics.errors import SnapshotError
 from learner.carry import position_factor
 from learner.config import ContinualConfig, TrainConfig
-from learner.continual import ContinualLearner, state_from_bytes, state_to_bytes
+from learner.continual import ContinualLearner
+from learner.continual_state import state_from_bytes, state_to_bytes
 from learner.metrics import accuracy_report
 from learner.snapshot import snapshot_from_bytes, snapshot_to_bytes
 from learner.workflow import prepare, train_on_dataset

@@ -240,6 +240,13 @@ def test_continual_goes_on_from_a_model_with_its_memory(data_file, tmp_path, cap
     assert out["updates"] == 4  # all 160 points streamed, no first model trained again
     assert out["base"]["kind"] == "geometric" and out["test"] == {}
     assert out["day_past_envelope"] < 0.05  # the same poses as the day it was trained on
+    # No test set: the day's own check is each batch scored before it was learned
+    rows = list(csv.DictReader((tmp_path / "day2.curve.csv").open()))
+    learned = np.array([(int(r["n_new"]), float(r["batch_coverage_90"])) for r in rows])
+    assert out["prequential"]["n_points"] == learned[:, 0].sum() == 4 * 36  # 4 of 40 held out
+    pooled = np.average(learned[:, 1], weights=learned[:, 0])
+    assert out["prequential"]["coverage_90"] == pytest.approx(pooled)
+    assert 0.0 < pooled <= 1.0
     model = load_snapshot(second)
     assert model.base_kind == "geometric" and model.is_fitted
     argv = ["continual", "--data", str(data_file), "--out", str(second), *carry]

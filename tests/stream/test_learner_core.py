@@ -137,7 +137,8 @@ def test_a_bad_batch_is_refused_without_touching_the_state(batches):
 
 def test_a_carried_model_goes_on_and_a_foreign_one_is_refused(batches, tmp_path):
     from kinematics.errors import ConfigError
-    from learner.continual import ContinualLearner, state_path, state_to_bytes
+    from learner.continual import ContinualLearner
+    from learner.continual_state import state_path, state_to_bytes
     from learner.snapshot import atomic_write_bytes, save_snapshot
 
     ds, bs = batches
