@@ -171,12 +171,11 @@ def whole_day(
     for i in range(0, len(X), cfg.batch):
         batch = slice(i, i + cfg.batch)
         Xb, Yb = X[batch], Y[batch]
-        prequential = accuracy_report(learner.model, Xb, Yb).coverage_90
         live = ~trust(learner.model, Xb, EPISTEMIC_LIMIT_MM).untrusted
         live_covered = (
             accuracy_report(learner.model, Xb[live], Yb[live]).coverage_90 if live.any() else np.nan
         )
-        learner.update(X[batch], Y[batch])
+        step = learner.update(Xb, Yb)
         untrusted = trust(learner.model, Xte, EPISTEMIC_LIMIT_MM).untrusted
         passed = test <= stream[min(i + cfg.batch, len(X)) - 1]
         rows.append(
@@ -186,7 +185,7 @@ def whole_day(
                 "coverage_90": covered(np.ones(len(test), dtype=bool)),
                 "untrusted_share": float(untrusted.mean()),
                 "coverage_90_trusted": covered(~untrusted),
-                "coverage_90_prequential": prequential,
+                "coverage_90_prequential": step.batch_coverage_90,
                 "prequential_trusted_share": float(live.mean()),
                 "coverage_90_prequential_trusted": live_covered,
                 "coverage_90_passed": covered(passed),
