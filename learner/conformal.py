@@ -34,3 +34,21 @@ def adapt_log_scale(
         miss = e > np.exp(s - log_scale)
         s = np.clip(s + rate * (miss - (1.0 - level)), *LOG_SCALE_BOUNDS)
     return s
+
+
+def take_up(log_scale: np.ndarray, last: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """The log scale after the calibrated scale went from ``last`` to ``scale``, the published
+    one (``last`` × e^``log_scale``) kept: a new calibration narrows nothing at once (ACI narrows
+    as the next points fall inside) and widens only past what is published. A carried day
+    calibrated on its first 20-40 held-out points was too narrow for its next batch; taking up
+    only the narrowing would stack each calibration's jitter up into ever wider intervals.
+
+    >>> one, two = np.ones(2), np.array([2.0, 2.0])
+    >>> s = take_up(np.zeros(2), last=two, scale=one)  # halved: ACI doubles it
+    >>> np.exp(s).tolist()
+    [2.0, 2.0]
+    >>> s = take_up(s, last=one, scale=np.array([1.5, 4.0]))  # 1.5: the published 2 kept; 4 past it
+    >>> np.round(np.exp(s), 2).tolist()
+    [1.33, 1.0]
+    """
+    return np.clip(log_scale + np.log(np.asarray(last) / scale), *LOG_SCALE_BOUNDS)

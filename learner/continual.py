@@ -47,7 +47,7 @@ from learner.carry import (
     unverified,
 )
 from learner.config import ContinualConfig
-from learner.conformal import adapt_log_scale
+from learner.conformal import adapt_log_scale, take_up
 from learner.continual_base import REFINED, doubled, due, memory_base, refined_base, status
 from learner.continual_records import Memory, UpdateMetrics, checked_batch, memory_mm
 from learner.continual_state import learner_state, restore_learner, state_from_bytes, state_path
@@ -77,7 +77,8 @@ class ContinualLearner:
         self.n_seen, self.version = 0, 0
         self.quarantine = QuarantineState.empty()
         self.n_withheld = 0
-        #: A carried model's interval scale (no ACI) while its day is young (:meth:`carry`).
+        #: A carried day's last interval scale before ACI: while the day is young the one it
+        #: came with (:meth:`carry`), then its last calibration (:meth:`_scale`).
         self.day_scale: np.ndarray | None = None
         self.day: CarriedDay | None = None  # a carried day's points, its frames fitted again
         self.trainer: Trainer | None = None  # runs its fits (None: here; stream: a process)
@@ -174,16 +175,10 @@ class ContinualLearner:
         self.n_seen = seen
         # The held-out set also picks the best epoch (and fit calibrates on it).
         val = (self._cal_x, self._cal_y) if len(self._cal_x) >= MIN_CALIBRATION else (None, None)
+        mem, epochs = (self._mem_x, self._mem_y), self.cfg.update_epochs(len(self._mem_x))
+        fit = {"val_fraction": 0.0, "lr": self.cfg.update_lr, "trainer": self.trainer}
         start = time.perf_counter()
-        report = self.trained.fit(
-            self._mem_x,
-            self._mem_y,
-            *val,
-            max_epochs=self.cfg.update_epochs(len(self._mem_x)),
-            val_fraction=0.0,
-            lr=self.cfg.update_lr,
-            trainer=self.trainer,
-        )
+        report = self.trained.fit(*mem, *val, max_epochs=epochs, **fit)
         withheld, holdout_mm = self._publish_gated()
         self._reidentify()
         self._refresh(before)
@@ -232,18 +227,19 @@ class ContinualLearner:
             mark, self.trained, self.model = self.model.unverified, new, copy_model(new)
             if self.day_scale is not None:  # a carried day: its mark kept until spread
                 hold_day(self.model, *cal, mark)
-            self.model.interval_scale = self.model.interval_scale * np.exp(self.aci_log_scale)
+            self._scale(self.model.interval_scale)
             self.version += 1
 
     def _publish_gated(self) -> tuple[bool, float]:
         """Publish the update unless the gate withholds it (the held-out error grew beyond the
         tolerance; the last published model stays). Withheld?, and held-out error (mm)."""
         before = holdout_mm(self.model, self._cal_x, self._cal_y)
-        last = copy_model(self.model)
+        last, scales = copy_model(self.model), (self.day_scale, self.aci_log_scale)
         self._publish()
         after = holdout_mm(self.model, self._cal_x, self._cal_y)
         if withhold(before, after, len(self._cal_x), self.cfg.quarantine):
             self.model, self.n_withheld = last, self.n_withheld + 1
+            self.day_scale, self.aci_log_scale = scales
             return True, before
         self.version += 1
         return False, after
@@ -346,13 +342,10 @@ class ContinualLearner:
         follows); calibrate on the held-out set (the trained model's scale while it is small);
         after a :meth:`carry`, re-weigh the network on the day's held-out points first, or keep
         the scale the model came with while they are fewer than :data:`MIN_DAY_POINTS`."""
+        published, trained = self.model.net.state_dict(), self.trained.net.state_dict()
         with torch.no_grad():
-            for published, trained in zip(
-                self.model.net.state_dict().values(),
-                self.trained.net.state_dict().values(),
-                strict=True,
-            ):
-                published.lerp_(trained, self.cfg.average)
+            for name, weights in published.items():
+                weights.lerp_(trained[name], self.cfg.average)
         self.model.envelope = self.trained.envelope
         carried, cal = self.day_scale is not None, (self._cal_x, self._cal_y)
         if carried and len(self._cal_x) < MIN_DAY_POINTS:  # a young day: the scale it came with
@@ -364,7 +357,15 @@ class ContinualLearner:
             self.model.calibrate(*cal)
         else:
             self.model.interval_scale = self.trained.interval_scale.copy()
-        self.model.interval_scale = self.model.interval_scale * np.exp(self.aci_log_scale)
+        self._scale(self.model.interval_scale)
+
+    def _scale(self, scale: np.ndarray) -> None:
+        """Publish the calibrated interval ``scale`` times the ACI scale; on a carried day ACI
+        takes up what it narrowed from :attr:`day_scale` (:func:`learner.conformal.take_up`)."""
+        if self.day_scale is not None:
+            self.aci_log_scale = take_up(self.aci_log_scale, self.day_scale, scale)
+            self.day_scale = np.asarray(scale, dtype=float).copy()
+        self.model.interval_scale = scale * np.exp(self.aci_log_scale)
 
     def _metrics(
         self,

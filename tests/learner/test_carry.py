@@ -141,3 +141,29 @@ def test_a_marked_day_stays_unverified_while_its_held_out_points_lie_in_one_regi
         assert len(state["holdout_x"]) >= 3 * MIN_DAY_POINTS
         assert spread(model.spec, state["holdout_x"], state["holdout_y"]) == (name == "spread")
     assert learner.model.unverified == ""  # the spread day, checked by its own points
+
+
+def test_a_days_calibration_narrower_than_its_scale_narrows_it_only_as_its_points_allow(learned):
+    """Carried with intervals three times too wide, the day's first calibration (20 held-out
+    points) is far narrower: the published scale does not fall to it at once (ACI takes the
+    difference up), and narrows as the day's next points fall inside it."""
+    p, model = learned
+    wide = _copy(model)
+    wide.interval_scale = 3.0 * wide.interval_scale
+    cfg = ContinualConfig(memory=150, batch=50, holdout=0.2, epochs_per_update=5, seed=0)
+    learner = ContinualLearner(wide, cfg)
+    learner.carry(p.X[200:250], p.Y[200:250])
+    published = [learner.model.interval_scale.copy()]
+    for i in range(200, 400, 50):
+        learner.update(p.X[i : i + 50], p.Y[i : i + 50])
+        published.append(learner.model.interval_scale.copy())
+    # 10, 20, 30, 40 held-out points: the day's own calibration from the second update on
+    calibrated = learner.day_scale
+    assert np.all(calibrated < 0.6 * published[0])
+    np.testing.assert_allclose(
+        learner.model.interval_scale, calibrated * np.exp(learner.aci_log_scale)
+    )
+    assert np.all(published[2] > 0.8 * published[1])  # not at once
+    assert position_factor(published[-1] / published[0]) < 0.9  # but as the points show
+    state = state_from_bytes(state_to_bytes(learner.state_dict()))
+    np.testing.assert_allclose(state["day_scale"], calibrated)
