@@ -361,7 +361,8 @@ class ContinualLearner:
 
     def _scale(self, scale: np.ndarray) -> None:
         """Publish the calibrated interval ``scale`` times the ACI scale; on a carried day ACI
-        takes up what it narrowed from :attr:`day_scale` (:func:`learner.conformal.take_up`)."""
+        takes up its change from :attr:`day_scale`, so that the published scale stays unless
+        ``scale`` is wider (:func:`learner.conformal.take_up`)."""
         if self.day_scale is not None:
             self.aci_log_scale = take_up(self.aci_log_scale, self.day_scale, scale)
             self.day_scale = np.asarray(scale, dtype=float).copy()
