@@ -1,27 +1,27 @@
 """A model carried into a new day: trained on one UR10 series (physics base + residual, its
-training split), then continued on the other series as ``robocal continual --from`` does.
-For k = 0, 10, 25, 50, 100 of the new series' first points in recorded order (as a new day starts:
-Series A's first 100 span 40-130 deg per joint, B's nearly its whole range),
-``ContinualLearner.carry``: the base's frames (``T_W_0``, tool) re-identified from those k
-points (MAP, the network's residual taken off) and the carried network's gain fitted on them;
-one update on them, and the new series' held-out test error (10 %, seed 0, drawn over the whole
-series) with 90 % coverage and how much wider the epistemic spread is there than on the source's
-own test points, and the share of test points the compensation service would flag as untrusted
-(epistemic std above its limit, or a joint or thermometer past the angles or temperatures the
-model was trained on, ``learner.envelope``: both shares; or all of them while the model is
-``unverified``: a carry that took the frames as moved, or whose first points needed intervals
-``learner.carry.MISS_EVIDENCE`` times wider than it starts with, the model's scale times the
-``drift_scale`` its training measured) with the 90 % coverage on
-the trusted ones. Both directions, ``--seeds`` seeds. ``--cache DIR`` keeps the trained source
-models (by series, base, seed and epochs) for the next run. ``--base-a`` / ``--base-b`` are the
-source models' bases (a kind or a model file, e.g. ``robocal gap``'s), ``--frame-prior-mm`` /
+training split), then continued on the other series as ``robocal continual --from`` does. For k = 0,
+10, 25, 50, 100 of the new series' first points in recorded order (as a new day starts: Series A's
+first 100 span 40-130 deg per joint, B's nearly its whole range), ``ContinualLearner.carry``: the
+base's frames (``T_W_0``, tool) re-identified from those k points (MAP, the network's residual taken
+off) and the carried network's gain fitted on them; one update on them (k = 0: the model as it
+answers before any of the day's points, ``learner.carry.before_day``), and the new series' held-out
+test error (10 %, seed 0, drawn over the whole series) with 90 % coverage and how much wider the
+epistemic spread is there than on the source's own test points, and the share of test points the
+compensation service would flag as untrusted (epistemic std above its limit, or a joint or
+thermometer past the angles or temperatures the model was trained on, ``learner.envelope``: both
+shares; or all of them while the model is ``unverified``: a carry that took the frames as moved, or
+whose first points needed intervals ``learner.carry.MISS_EVIDENCE`` times wider than it starts with,
+the model's scale times the ``drift_scale`` its training measured) with the 90 % coverage on the
+trusted ones. Both directions, ``--seeds`` seeds. ``--cache DIR`` keeps the trained source models
+(by series, base, seed and epochs) for the next run. ``--base-a`` / ``--base-b`` are the source
+models' bases (a kind or a model file, e.g. ``robocal gap``'s), ``--frame-prior-mm`` /
 ``--moved-frame-prior-mm`` the carry's frame priors (equal: no choice; ``ContinualConfig``);
 ``frames_moved`` is the share of seeds whose carry took the frames as moved. ``--order spread``
 draws the k points at random from the new series instead (seeded): a day that starts with a
-reference program over the workspace. ``--days FILE`` carries within one series instead: its
-points up to its first pause of more than ``--gap-h`` hours (recorded order; UR10 Series A:
-its first 5,252 points, 18 h, then a 6.5 h pause) and the rest, both ways: another day of the
-same cell, the tracker not set up anew.
+reference program over the workspace. ``--days FILE`` carries within one series instead: its points
+up to its first pause of more than ``--gap-h`` hours (recorded order; UR10 Series A: its first 5,252
+points, 18 h, then a 6.5 h pause) and the rest, both ways: another day of the same cell, the tracker
+not set up anew.
 
 ``--whole-day N`` streams the new series' first ``N`` training points after the carry instead:
 the carry on its first ``init`` points (``ContinualConfig``), then one update per ``batch`` of
@@ -48,6 +48,7 @@ import numpy as np
 import torch
 
 from kinematics.dataset import read_dataset, write_dataset
+from learner.carry import before_day
 from learner.config import (
     DEFAULT_BASE,
     FRAME_PRIOR_MM,
@@ -119,14 +120,15 @@ def transfer(
             learner.update(X[:k], Y[:k])
         else:
             frames_only, gain = float("nan"), 1.0
+        model = learner.model if k else before_day(learner.model)
         frames_moved = float("frames moved" in learner.base.note)
-        r = accuracy_report(learner.model, Xte, Yte)
-        ev = learner.model.predict(Xte)
+        r = accuracy_report(model, Xte, Yte)
+        ev = model.predict(Xte)
         epi_std = np.sqrt(ev.epistemic()[:, :3])
         epi = epi_std.mean()
         lo, hi = ev.interval(0.9)
         inside = (Yte[:, :3] >= lo[:, :3]) & (Yte[:, :3] <= hi[:, :3])
-        flags = trust(learner.model, Xte, EPISTEMIC_LIMIT_MM)
+        flags = trust(model, Xte, EPISTEMIC_LIMIT_MM)
         untrusted = flags.untrusted
         rows.append(
             {

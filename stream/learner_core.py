@@ -9,7 +9,9 @@ error and uncertainty (:mod:`learner.holdout`), the prequential batch error and 
 composition by batch age. Its checkpoint (learner state + test set + counters, safetensors
 with JSON metadata) is built and read as bytes here; the learner stage writes and reads the file
 (:mod:`stream.stages.learner_stage`), so a restart continues without losing accepted data.
-Batches already learned (by ``seq``) are refused as duplicates.
+Batches already learned (by ``seq``) are refused as duplicates. A batch that comes more than
+``new_day_after_h`` after the latest learned point starts a new day, carried into it as a
+model file is (:meth:`learner.continual.ContinualLearner.carry`).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from kinematics.errors import ConfigError, RobocalError, SnapshotError
 from kinematics.gap.model_file import load_model_file
 from kinematics.model import RobotModel
 from learner.base import PhysicsBase, check_same_robot, file_base
+from learner.carry import before_day
 from learner.config import ContinualConfig, ModelConfig, TrainConfig, is_model_file
 from learner.continual import ContinualLearner, load_learner
 from learner.continual_records import UpdateMetrics
@@ -61,12 +64,20 @@ class LearnerStageConfig:
     #: Train in a child process (:mod:`learner.train_process`, about 0.4 GB): the stages keep
     #: the interpreter and the model trains on another core; the same weights either way.
     train_process: bool = True
+    #: A pause between two batches' points longer than this (h) starts a new day: its first
+    #: batch carries the model as ``start_from`` does (frames checked, intervals as wide as
+    #: its drift scale, the day's own held-out points), and a model restored after such a
+    #: pause is published as :func:`~learner.carry.before_day` until then. UR10 Series A's
+    #: days are 5.6-21 h apart; the paper campaign's stops last 1 h (``inf``: never).
+    new_day_after_h: float = 4.0
 
     def __post_init__(self) -> None:
         if not (isinstance(self.holdout_every, int) and self.holdout_every >= 2):
             raise ConfigError(
                 f"learner.holdout_every must be an int >= 2, got {self.holdout_every}"
             )
+        if not self.new_day_after_h > 0:
+            raise ConfigError(f"learner.new_day_after_h must be > 0 h, got {self.new_day_after_h}")
 
 
 @dataclass(frozen=True)
@@ -99,6 +110,8 @@ class LearnerCore:
             check_same_robot(load_model_file(path).description, desc, f"base file {path}")
         self.last_seq = -1
         self.n_points = 0
+        #: The latest learned point's time (s, the points' clock; None before one).
+        self.last_t: float | None = None
         #: What the learner did with the latest batch (None while a batch is refused).
         self.last_step: UpdateMetrics | None = None
         self.age = MemoryAge()
@@ -132,7 +145,9 @@ class LearnerCore:
             raise RejectedMessageError("features", f"batch {batch.seq}: {exc}") from None
 
     def add_batch(self, batch: Batch, now: float | None = None) -> Update | None:
-        """Learn one batch; the published update, or None while collecting the first points."""
+        """Learn one batch; the published update, or None while collecting the first points.
+        A batch across a new day's pause is learned as two: the old day's points, then the
+        new day's, carried into it."""
         self.last_step = None
         if batch.seq <= self.last_seq:
             raise RejectedMessageError("duplicate", f"batch {batch.seq} already learned")
@@ -141,11 +156,42 @@ class LearnerCore:
         X, Y = self.features(batch)
         if not (np.isfinite(X).all() and np.isfinite(Y).all()):
             raise RejectedMessageError("non_finite", f"batch {batch.seq}: non-finite features")
+        t, spec = np.array([p.t for p in batch.points]), self.spec_for(batch)
+        cut = self._new_day_at(t)
+        self.last_seq, update = batch.seq, None
+        if cut:  # the old day's last points first
+            update = self._learn(X[:cut], Y[:cut], spec, t[cut - 1], now)
+        if cut is not None and self.learner is not None and self.learner.model.is_fitted:
+            self._reidentify = True  # carried into the new day as a model file is
+            self.test = HeldOut(self.learner.model.spec.n_features, self.cfg.max_test_points)
+        cut = cut or 0
+        last = self._learn(X[cut:], Y[cut:], spec, t[-1], now, self.last_step)
+        self.last_t = float(t.max())
+        return last or update
+
+    def _new_day_at(self, t: np.ndarray) -> int | None:
+        """The index of a batch's first point (times ``t``, s) after a pause of more than
+        ``new_day_after_h`` from the point before it (the latest learned, for the first)."""
+        before = np.concatenate([[np.inf if self.last_t is None else self.last_t], t[:-1]])
+        pauses = np.flatnonzero(t - before > 3600.0 * self.cfg.new_day_after_h)
+        return int(pauses[0]) if len(pauses) else None
+
+    def _learn(
+        self,
+        X: np.ndarray,
+        Y: np.ndarray,
+        spec: FeatureSpec,
+        t: float,
+        now: float | None,
+        earlier: UpdateMetrics | None = None,
+    ) -> Update | None:
+        """Screen, hold out and learn the points ``X, Y`` of the latest batch (the last at
+        ``t``, s; ``spec``: its features for a first model; ``earlier``: what its points before
+        a new day's pause did)."""
         if self._reidentify:  # a carried model's first batch: this cell's frames and trust
             self.learner.carry(X, Y)
             self._reidentify = False
         if self.learner is None:
-            spec = self.spec_for(batch)
             base = self._file_base(spec)
             model = ErrorModel.create(
                 spec, self.cfg.model, self.cfg.train, self.cfg.seed, self.desc.name, base
@@ -156,26 +202,33 @@ class LearnerCore:
         test = holdout_mask(self.n_points, len(X), self.cfg.holdout_every) & passed
         train = ~test & passed
         self.test.add(X[test], Y[test])
-        self.age.record(X[train], batch.seq)
+        self.age.record(X[train], self.last_seq)
         self.n_points += len(X)
-        self.last_seq = batch.seq
         version = self.learner.version
         self.learner.trainer = self.trainer  # however the learner came: new, file, checkpoint
         m = self.learner.update(X[train], Y[train], screened=True)
-        self.last_step = replace(m, quarantined=int((~passed).sum()))
+        quarantined = int((~passed).sum()) + (0 if earlier is None else earlier.quarantined)
+        self.last_step = replace(m, quarantined=quarantined)
         if self.learner.version == version:
             return None
         self.age.keep(self.learner.memory.x)
         metrics = self.metrics(m.batch_mean_mm, m.train_time_s, now)
-        return self.published(batch.points[-1].t, metrics)
+        return self.published(float(t), metrics)
 
-    def published(self, t: float, metrics: Metrics) -> Update:
-        """The update message of the published model, stamped ``t`` (s)."""
+    def paused(self, t: float) -> bool:
+        """Whether time ``t`` (s) comes more than ``new_day_after_h`` after the latest learned
+        point: a new day, that no point has checked the model on yet."""
+        return self.last_t is not None and t - self.last_t > 3600.0 * self.cfg.new_day_after_h
+
+    def published(self, t: float, metrics: Metrics, new_day: bool = False) -> Update:
+        """The update message of the published model, stamped ``t`` (s); on a ``new_day``
+        before any of its points, as :func:`~learner.carry.before_day` serves it."""
         learner = self.learner
         header = ModelHeader(
             model_version=learner.version, robot=self.desc.name, n_seen=learner.n_seen, t=t
         )
-        snap = snapshot_to_bytes(learner.model, {"model_version": learner.version})
+        model = before_day(learner.model) if new_day else learner.model
+        snap = snapshot_to_bytes(model, {"model_version": learner.version})
         return Update(header, snap, metrics)
 
     def metrics(self, batch_mean_mm: float, train_time_s: float, now: float | None) -> Metrics:
@@ -220,6 +273,7 @@ class LearnerCore:
             "schema": CHECKPOINT_SCHEMA,
             "last_seq": self.last_seq,
             "n_points": self.n_points,
+            "last_t": self.last_t,
             "windows": [[e, s, f] for e, (s, f) in self.windows.items()],
             "state": state_to_bytes(self.learner.state_dict()).hex(),
         }
@@ -255,5 +309,6 @@ class LearnerCore:
         self.test = HeldOut(model.spec.n_features, self.cfg.max_test_points)
         self.test.add(arrays["test_x"], arrays["test_y"])
         self.last_seq, self.n_points = int(meta["last_seq"]), int(meta["n_points"])
+        self.last_t = None if meta.get("last_t") is None else float(meta["last_t"])
         self.windows = {int(e): (int(s), int(f)) for e, s, f in meta.get("windows", [])}
         self.age = MemoryAge.from_arrays(arrays["age_rows"], arrays["ages"])

@@ -1,13 +1,14 @@
 """The learner stage: batches in; model snapshots, metrics and the latest-model queryable out.
 
-Snapshots are published on ``.../model`` as the framed payload of wire.codec (header JSON
-+ safetensors); the same payload answers queries on ``.../model`` so a late joiner gets the
-newest model at once. With a checkpoint path, the state is written after every update and
-restored on start, and every batch the stage accepts is first appended (fsync'd) to an
-:class:`~stream.state.AcceptedLog` beside it that the next checkpoint clears; a restart replays
-the log after the checkpoint, so even a ``kill -9`` loses no accepted point. The replay is the
-worker's first job, queued before the stage subscribes: batches that arrive while it trains
-(seconds; about a minute for a carried day's fresh network) wait behind it, not lost.
+Snapshots are published on ``.../model`` as the framed payload of wire.codec (header JSON +
+safetensors); the same payload answers queries on ``.../model`` so a late joiner gets the newest
+model at once. With a checkpoint path, the state is written after every update and restored on start
+(published at once; after a pause of ``new_day_after_h`` by the wall clock as
+:func:`~learner.carry.before_day` serves it), and every batch the stage accepts is first appended
+(fsync'd) to an :class:`~stream.state.AcceptedLog` beside it that the next checkpoint clears; a
+restart replays the log after the checkpoint, so even a ``kill -9`` loses no accepted point. The
+replay is the worker's first job, queued before the stage subscribes: batches that arrive while it
+trains (seconds; about a minute for a carried day's fresh network) wait behind it, not lost.
 
 Batches are numbered by the window per run (``epoch``, ``seq``, ``first``); the stage keeps,
 with the checkpoint, the last ``seq`` and next point index of the :data:`KEPT_EPOCHS` window
@@ -130,7 +131,8 @@ class LearnerStage(Stage):
                     e: {"last_seq": s, "next_point": f} for e, (s, f) in self.core.windows.items()
                 },
             )
-            self._publish(self.core.published(0.0, self.core.metrics(float("nan"), 0.0, None)))
+            metrics = self.core.metrics(float("nan"), 0.0, None)
+            self._publish(self.core.published(0.0, metrics, self.core.paused(time.time())))
             self._weight = {e: s + 1 for e, (s, _) in self.core.windows.items()}
         self.trainer = TrainProcess(self._train_failed) if cfg.train_process else None
         self.core.trainer = self.trainer

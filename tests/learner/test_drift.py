@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from kinematics.errors import SnapshotError
-from learner.carry import position_factor
+from learner.carry import BEFORE_DAY, before_day, position_factor
 from learner.config import ContinualConfig, TrainConfig
 from learner.continual import ContinualLearner
 from learner.continual_state import state_from_bytes, state_to_bytes
@@ -78,6 +78,24 @@ def test_a_carry_starts_the_day_as_wide_as_the_drift_says_and_trusts_it(trained)
     )
     assert learner.model.unverified == ""
     assert accuracy_report(learner.model, X[20:], Y[20:]).coverage_90 > 0.85
+
+
+def test_before_any_of_a_new_days_points_the_model_answers_drift_wide_and_unverified(trained):
+    """Served on a later day before a carry has seen any of its points, the drifting robot's
+    model covers that day as the drift-widened carry does, and says it is unchecked; the
+    model it came from is left as it was."""
+    model = trained["drifting"].model
+    later = _drifting(make_dataset(600, seed=8))
+    p = prepare(later, test_fraction=0.0, spec=model.spec)
+    X, Y = p.X[480:], p.Y[480:]
+    served = before_day(model)
+    np.testing.assert_allclose(served.interval_scale, model.interval_scale * model.drift_scale)
+    assert served.unverified == BEFORE_DAY and model.unverified == ""
+    assert accuracy_report(model, X, Y).coverage_90 < 0.85
+    assert accuracy_report(served, X, Y).coverage_90 > 0.85
+    np.testing.assert_array_equal(served.predict(X).gamma, model.predict(X).gamma)
+    again = snapshot_from_bytes(snapshot_to_bytes(served))
+    assert again.unverified == BEFORE_DAY
 
 
 def test_a_day_carried_again_while_young_is_not_widened_twice(trained):

@@ -11,7 +11,10 @@ import pytest
 import torch
 
 from kinematics.description import load_description
+from kinematics.errors import ConfigError
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
+from learner.holdout import holdout_mask
+from learner.snapshot import snapshot_from_bytes
 from sim_sources.cell import simulate
 from sim_sources.scenarios import get_scenario
 from stream.bus import BusConfig, free_port, open_session
@@ -136,7 +139,6 @@ def test_a_bad_batch_is_refused_without_touching_the_state(batches):
 
 
 def test_a_carried_model_goes_on_and_a_foreign_one_is_refused(batches, tmp_path):
-    from kinematics.errors import ConfigError
     from learner.continual import ContinualLearner
     from learner.continual_state import state_path, state_to_bytes
     from learner.snapshot import atomic_write_bytes, save_snapshot
@@ -169,6 +171,62 @@ def test_a_carried_model_goes_on_and_a_foreign_one_is_refused(batches, tmp_path)
     np.testing.assert_array_equal(again.learner.day.x, day2.learner.day.x)
     with pytest.raises(ConfigError, match="is for robot 'fanuc_m900ib700'"):
         LearnerCore(load_description("ur10"), replace(CFG, start_from=str(path)))
+
+
+def _later(batch, seq, hours, start=0):
+    """``batch`` renumbered ``seq``, its points from ``start`` on ``hours`` later."""
+    points = tuple(
+        replace(p, t=p.t + 3600.0 * hours) if i >= start else p for i, p in enumerate(batch.points)
+    )
+    return Batch(seq=seq, points=points)
+
+
+def test_a_pause_longer_than_a_night_starts_a_new_day_and_a_shorter_one_does_not(batches):
+    """Points after a pause of more than ``new_day_after_h`` (4 h) are a new day: the model is
+    carried into it on them (frames checked, the day's own test set), the batch's points before
+    the pause learned first as the old day's; after a 1 h stop the day goes on as it was."""
+    ds, bs = batches
+    c = core(ds)
+    for b in bs[:3]:
+        c.add_batch(b)
+    shifted = bs[3].points[0].t - bs[2].points[-1].t
+    c.add_batch(_later(bs[3], 3, 1.0 - shifted / 3600.0))
+    assert c.learner.day is None and len(c.test_y) == 16
+    t_last = c.last_t
+    assert c.paused(t_last + 4.1 * 3600.0) and not c.paused(t_last + 3.9 * 3600.0)
+    seen = c.learner.n_seen
+    update = c.add_batch(_later(bs[4], 4, 5.0, start=12))  # the night falls after 12 points
+    assert update is not None and c.learner.day is not None
+    assert c.learner.day.fitted == 8 and c.learner.day_scale is not None
+    day_test = holdout_mask(92, 8, 5).sum()  # every fifth point by arrival: 80 came before
+    assert c.learner.n_seen == seen + 20 - holdout_mask(80, 12, 5).sum() - day_test
+    assert len(c.test_y) == day_test  # the day's own test set
+    assert c.last_seq == 4 and c.last_t == max(p.t for p in _later(bs[4], 4, 5.0, 12).points)
+    again = core(ds)
+    again.restore(c.checkpoint())
+    assert again.last_t == c.last_t
+
+
+def test_a_model_restored_after_a_pause_is_served_unverified_until_the_days_first_batch(
+    batches, tmp_path
+):
+    """A checkpoint restored the next morning is published as it answers before any of the
+    new day's points (``learner.carry.before_day``): marked, so compensation flags it."""
+    from learner.carry import BEFORE_DAY
+
+    ds, bs = batches
+    c = core(ds)
+    for b in bs[:3]:
+        c.add_batch(b)
+    now = c.last_t + 8 * 3600.0
+    assert c.paused(now)
+    served = snapshot_from_bytes(c.published(0.0, c.metrics(0.0, 0.0, 0.0), c.paused(now)).snapshot)
+    assert served.unverified == BEFORE_DAY
+    assert c.learner.model.unverified == ""  # the learner's own model is not touched
+    same_day = snapshot_from_bytes(c.published(0.0, c.metrics(0.0, 0.0, 0.0)).snapshot)
+    assert same_day.unverified == ""
+    with pytest.raises(ConfigError, match="new_day_after_h must be > 0 h"):
+        LearnerStageConfig(new_day_after_h=0.0)
 
 
 def test_quarantined_points_are_neither_tested_nor_learned(batches):
@@ -308,7 +366,6 @@ def test_a_model_file_as_the_base_stands_under_the_first_model_and_a_foreign_one
     first model stands on it, its frame against this cell's tracker; a file of another robot
     stops the core at the start, naming it."""
     from kinematics.calibration import calibrate
-    from kinematics.errors import ConfigError
     from kinematics.gap.model_file import ModelFile, model_to_toml
 
     ds, bs = batches
