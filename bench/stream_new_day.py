@@ -1,13 +1,14 @@
 """A multi-day real series streamed through the learner stage's core (``LearnerCore``, the
 daemon's learner) in recorded order, batches of ``n_B`` points, with and without new days: a
-pause of more than ``new_day_after_h`` (default 4 h) between points carries the model into the
-new day (``ContinualLearner.carry``), ``inf`` never does. For each day after the first: the
-coverage of its first ``--day-batches`` batches after the first, each scored before it was
-learned by the model then published (what the line was answered with: its 90 % intervals, the
-share compensation would flag untrusted and the coverage of the rest), and over the whole
-stream the same prequential figures and the final model's error on a held-out 10 % (seed 0,
-drawn over the whole series, never streamed). The day's very first batch is answered by the
-last day's model either way: nothing tells the stage it is a new day before its points come.
+pause of more than ``new_day_after_h`` (here 4 h) between points carries the model into the
+new day (``ContinualLearner.carry``), ``inf`` (the default) never does. For each day after
+the first: the position error and coverage of its first ``--day-batches`` batches after the
+first, each scored before it was learned by the model then published (what the line was
+answered with: its error, its 90 % intervals, the share compensation would flag untrusted
+and the coverage of the rest), and over the whole stream the same prequential figures and the
+final model's error on a held-out 10 % (seed 0, drawn over the whole series, never streamed).
+The day's very first batch is answered by the last day's model either way: nothing tells the
+stage it is a new day before its points come.
 
     .venv/bin/python bench/stream_new_day.py --data /tmp/a.parquet --new-day-after-h 4 inf
 """
@@ -34,24 +35,28 @@ EPISTEMIC_LIMIT_MM = CompensationConfig().epistemic_limit_mm
 
 
 def scored(model, X: np.ndarray, Y: np.ndarray) -> dict:
-    """90 % coverage of ``X, Y`` under ``model``, the share it flags untrusted and the coverage
-    of the trusted rest (position components)."""
+    """Position error (mm) and 90 % coverage of ``X, Y`` under ``model``, the share it flags
+    untrusted and the coverage of the trusted rest (position components)."""
     ev = model.predict(X)
     lo, hi = ev.interval(0.9)
     inside = (Y[:, :3] >= lo[:, :3]) & (Y[:, :3] <= hi[:, :3])
+    error_mm = 1e3 * np.linalg.norm(Y[:, :3] - ev.mean[:, :3], axis=1)
     untrusted = trust(model, X, EPISTEMIC_LIMIT_MM).untrusted
-    return {"inside": inside, "untrusted": untrusted}
+    return {"inside": inside, "untrusted": untrusted, "error_mm": error_mm}
 
 
 def summary(rows: list[dict]) -> dict:
-    """Coverage, untrusted share and trusted coverage over the scored batches ``rows``."""
+    """Mean error (mm), coverage, untrusted share and trusted coverage over the scored batches
+    ``rows``."""
     if not rows:
         return {"points": 0}
     inside = np.concatenate([r["inside"] for r in rows])
+    error_mm = np.concatenate([r["error_mm"] for r in rows])
     untrusted = np.concatenate([r["untrusted"] for r in rows])
     trusted = inside[~untrusted]
     return {
         "points": len(inside),
+        "mean_mm": float(error_mm.mean()),
         "coverage_90": float(inside.mean()),
         "untrusted_share": float(untrusted.mean()),
         "coverage_90_trusted": float(trusted.mean()) if len(trusted) else float("nan"),

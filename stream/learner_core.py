@@ -10,8 +10,8 @@ composition by batch age. Its checkpoint (learner state + test set + counters, s
 with JSON metadata) is built and read as bytes here; the learner stage writes and reads the file
 (:mod:`stream.stages.learner_stage`), so a restart continues without losing accepted data.
 Batches already learned (by ``seq``) are refused as duplicates. A batch that comes more than
-``new_day_after_h`` after the latest learned point starts a new day, carried into it as a
-model file is (:meth:`learner.continual.ContinualLearner.carry`).
+``new_day_after_h`` (off by default) after the latest learned point starts a new day, carried
+into it as a model file is (:meth:`learner.continual.ContinualLearner.carry`).
 """
 
 from __future__ import annotations
@@ -67,9 +67,11 @@ class LearnerStageConfig:
     #: A pause between two batches' points longer than this (h) starts a new day: its first
     #: batch carries the model as ``start_from`` does (frames checked, intervals as wide as
     #: its drift scale, the day's own held-out points), and a model restored after such a
-    #: pause is published as :func:`~learner.carry.before_day` until then. UR10 Series A's
-    #: days are 5.6-21 h apart; the paper campaign's stops last 1 h (``inf``: never).
-    new_day_after_h: float = 4.0
+    #: pause is published as :func:`~learner.carry.before_day` until then. Off (``inf``) by
+    #: default: on UR10 Series A (one tracker set-up, days 5.6-21 h apart) 4 h made the days'
+    #: first batches 0.70 mm instead of 0.54 mm and the stream 1.7 x slower (BENCHMARKS.md, "A
+    #: new day before any of its points"); set it where the tracker is set up again each day.
+    new_day_after_h: float = float("inf")
 
     def __post_init__(self) -> None:
         if not (isinstance(self.holdout_every, int) and self.holdout_every >= 2):

@@ -2,9 +2,10 @@
 
 Snapshots are published on ``.../model`` as the framed payload of wire.codec (header JSON +
 safetensors); the same payload answers queries on ``.../model`` so a late joiner gets the newest
-model at once. With a checkpoint path, the state is written after every update and restored on start
-(published at once; after a pause of ``new_day_after_h`` by the wall clock as
-:func:`~learner.carry.before_day` serves it), and every batch the stage accepts is first appended
+model at once; a ``start_from`` model file is published at once as
+:func:`~learner.carry.before_day` serves it. With a checkpoint path, the state is written after
+every update and restored on start (published at once; after a pause of ``new_day_after_h`` by
+the wall clock as ``before_day`` serves it), and every batch the stage accepts is first appended
 (fsync'd) to an :class:`~stream.state.AcceptedLog` beside it that the next checkpoint clears; a
 restart replays the log after the checkpoint, so even a ``kill -9`` loses no accepted point. The
 replay is the worker's first job, queued before the stage subscribes: batches that arrive while it
@@ -134,6 +135,9 @@ class LearnerStage(Stage):
             metrics = self.core.metrics(float("nan"), 0.0, None)
             self._publish(self.core.published(0.0, metrics, self.core.paused(time.time())))
             self._weight = {e: s + 1 for e, (s, _) in self.core.windows.items()}
+        elif self.core.learner is not None:  # a model file to go on from: none of the day seen
+            metrics = self.core.metrics(float("nan"), 0.0, None)
+            self._publish(self.core.published(0.0, metrics, new_day=True))
         self.trainer = TrainProcess(self._train_failed) if cfg.train_process else None
         self.core.trainer = self.trainer
         self.answer("model", self._reply_latest)

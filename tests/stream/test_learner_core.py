@@ -40,8 +40,12 @@ def batches():
     return ds, [Batch(seq=i, points=tuple(points[20 * i : 20 * i + 20])) for i in range(5)]
 
 
-def core(ds):
-    return LearnerCore(load_description(ds.meta.robot), CFG, np.asarray(ds.meta.T_W_0))
+#: New days after pauses over 4 h (off by default).
+NEW_DAYS = replace(CFG, new_day_after_h=4.0)
+
+
+def core(ds, cfg=CFG):
+    return LearnerCore(load_description(ds.meta.robot), cfg, np.asarray(ds.meta.T_W_0))
 
 
 def test_updates_hold_out_every_fifth_point_and_report_metrics(batches):
@@ -171,6 +175,20 @@ def test_a_carried_model_goes_on_and_a_foreign_one_is_refused(batches, tmp_path)
     np.testing.assert_array_equal(again.learner.day.x, day2.learner.day.x)
     with pytest.raises(ConfigError, match="is for robot 'fanuc_m900ib700'"):
         LearnerCore(load_description("ur10"), replace(CFG, start_from=str(path)))
+    from learner.carry import BEFORE_DAY
+
+    server = open_session(BusConfig.loopback(free_port(), listen=True))
+    stage = LearnerStage(
+        server, "cell", ds.meta.robot, load_description(ds.meta.robot),
+        replace(CFG, start_from=str(path)), np.asarray(ds.meta.T_W_0),
+    )  # fmt: skip
+    try:  # served before any of the day's points: drift-wide and unverified
+        served = snapshot_from_bytes(stage.last_update.snapshot)
+    finally:
+        stage.close(10.0)
+        server.close()
+    assert served.unverified == BEFORE_DAY
+    assert stage.last_update.header.model_version == day1.learner.version
 
 
 def _later(batch, seq, hours, start=0):
@@ -184,9 +202,15 @@ def _later(batch, seq, hours, start=0):
 def test_a_pause_longer_than_a_night_starts_a_new_day_and_a_shorter_one_does_not(batches):
     """Points after a pause of more than ``new_day_after_h`` (4 h) are a new day: the model is
     carried into it on them (frames checked, the day's own test set), the batch's points before
-    the pause learned first as the old day's; after a 1 h stop the day goes on as it was."""
+    the pause learned first as the old day's; after a 1 h stop the day goes on as it was. Off
+    by default: the same pause is one day."""
     ds, bs = batches
-    c = core(ds)
+    off = core(ds)
+    for b in bs[:3]:
+        off.add_batch(b)
+    off.add_batch(_later(bs[4], 4, 5.0, start=12))
+    assert off.learner.day is None and not off.paused(off.last_t + 1e6)
+    c = core(ds, NEW_DAYS)
     for b in bs[:3]:
         c.add_batch(b)
     shifted = bs[3].points[0].t - bs[2].points[-1].t
@@ -202,7 +226,7 @@ def test_a_pause_longer_than_a_night_starts_a_new_day_and_a_shorter_one_does_not
     assert c.learner.n_seen == seen + 20 - holdout_mask(80, 12, 5).sum() - day_test
     assert len(c.test_y) == day_test  # the day's own test set
     assert c.last_seq == 4 and c.last_t == max(p.t for p in _later(bs[4], 4, 5.0, 12).points)
-    again = core(ds)
+    again = core(ds, NEW_DAYS)
     again.restore(c.checkpoint())
     assert again.last_t == c.last_t
 
@@ -215,7 +239,7 @@ def test_a_model_restored_after_a_pause_is_served_unverified_until_the_days_firs
     from learner.carry import BEFORE_DAY
 
     ds, bs = batches
-    c = core(ds)
+    c = core(ds, NEW_DAYS)
     for b in bs[:3]:
         c.add_batch(b)
     now = c.last_t + 8 * 3600.0
