@@ -18,10 +18,15 @@ models' bases (a kind or a model file, e.g. ``robocal gap``'s), ``--frame-prior-
 ``--moved-frame-prior-mm`` the carry's frame priors (equal: no choice; ``ContinualConfig``);
 ``frames_moved`` is the share of seeds whose carry took the frames as moved. ``--order spread``
 draws the k points at random from the new series instead (seeded): a day that starts with a
-reference program over the workspace. ``--days FILE`` carries within one series instead: its points
-up to its first pause of more than ``--gap-h`` hours (recorded order; UR10 Series A: its first 5,252
-points, 18 h, then a 6.5 h pause) and the rest, both ways: another day of the same cell, the tracker
-not set up anew.
+reference program over the workspace. ``--target-frames carry`` (the default) gives the new
+series its tracker frame ``T_W_0`` as identified from the carry's own k points
+(:func:`kinematics.frames.reframed`; k = 0 keeps the importer's), which is all a new day knows
+when it starts; ``series`` keeps the importer's, fitted on every row of the series, its test
+points included (the figures recorded before 2026-12-06 were measured so). ``--days FILE``
+carries within one series instead: its points up to its first pause of more than ``--gap-h``
+hours (recorded order; UR10 Series A: its first 5,252 points, 18 h, then a 6.5 h pause) and the
+rest, both ways: another day of the same cell, the tracker not set up anew, so the new day is
+in the frames the model's own day gave (each day's fitted on its own points).
 
 ``--whole-day N`` streams the new series' first ``N`` training points after the carry instead:
 the carry on its first ``init`` points (``ContinualConfig``), then one update per ``batch`` of
@@ -42,12 +47,14 @@ import argparse
 import json
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from kinematics.dataset import read_dataset, write_dataset
+from kinematics.dataset import Dataset, read_dataset, write_dataset
+from kinematics.frames import reframed
 from learner.carry import before_day
 from learner.config import (
     DEFAULT_BASE,
@@ -59,7 +66,7 @@ from learner.config import (
 from learner.continual import load_learner
 from learner.metrics import accuracy_report, trust
 from learner.model import ErrorModel
-from learner.workflow import prepare, train_on_dataset
+from learner.workflow import nominal_description, prepare, train_on_dataset
 from stream.compensation import CompensationConfig
 from stream.reports.learner import write_trained
 
@@ -89,6 +96,19 @@ def source_model(
     return model_path, result.model, result.test.mean_mm
 
 
+def in_frames(frames: str, source: str, target: Dataset, rows: np.ndarray) -> Dataset:
+    """The new series ``target`` in the data frames (``T_W_0``, ``T_6_S``) of ``frames``: those
+    the carry's points ``rows`` give (``carry``: all a new day knows when it starts), its
+    importer's, fitted on every row, test points included (``series``), or the source
+    series' (``source``: the same tracker set-up, the frames kept from the day before)."""
+    if frames == "carry":
+        return reframed(target, nominal_description(target), rows)
+    if frames == "source":
+        src = read_dataset(source).meta
+        return Dataset(target.table, replace(target.meta, T_W_0=src.T_W_0, T_6_S=src.T_6_S))
+    return target
+
+
 def transfer(
     source: str,
     target: str,
@@ -98,20 +118,26 @@ def transfer(
     base: str,
     priors: tuple,
     order: str = "recorded",
+    target_frames: str = "carry",
 ) -> dict:
     """One source model (trained on ``base``, cached in ``folder``) carried to ``target``, on
-    the new series' points in ``order`` (``recorded`` or ``spread``)."""
+    the new series' points in ``order`` (``recorded`` or ``spread``), in the data frames
+    ``target_frames`` names (:func:`in_frames`)."""
     model_path, model, source_mm = source_model(source, seed, epochs, folder, base)
     cfg = ContinualConfig(seed=seed, frame_prior_mm=priors[0], moved_frame_prior_mm=priors[1])
     p_src = prepare(read_dataset(source), test_fraction=0.1, seed=seed, spec=model.spec)
     epi_src = np.sqrt(model.predict(p_src.X[p_src.test]).epistemic()[:, :3]).mean()
-    p = prepare(read_dataset(target), test_fraction=0.1, seed=0, spec=model.spec)
+    target_ds = read_dataset(target)
+    p = prepare(target_ds, test_fraction=0.1, seed=0, spec=model.spec)
     stream = np.sort(p.train)
     if order == "spread":
         stream = np.random.default_rng(seed).permutation(p.train)
-    X, Y, Xte, Yte = p.X[stream], p.Y[stream], p.X[p.test], p.Y[p.test]
     rows = []
     for k in STEPS:
+        frames = "series" if k == 0 and target_frames == "carry" else target_frames
+        ds_k = in_frames(frames, source, target_ds, stream[:k])
+        p = prepare(ds_k, test_fraction=0.1, seed=0, spec=model.spec)
+        X, Y, Xte, Yte = p.X[stream], p.Y[stream], p.X[p.test], p.Y[p.test]
         learner = load_learner(model_path, cfg)
         t0 = time.perf_counter()
         if k:
@@ -154,14 +180,26 @@ def transfer(
 
 
 def whole_day(
-    source: str, target: str, seed: int, epochs: int, folder: Path, base: str, priors: tuple, n: int
+    source: str,
+    target: str,
+    seed: int,
+    epochs: int,
+    folder: Path,
+    base: str,
+    priors: tuple,
+    n: int,
+    target_frames: str = "carry",
 ) -> list[dict]:
     """``source``'s model carried to ``target`` and streamed through its first ``n`` training
-    points in recorded order (``--whole-day``): one row per update."""
+    points in recorded order (``--whole-day``), in the data frames ``target_frames`` names
+    (:func:`in_frames`; ``carry``: the carry's ``init`` points): one row per update."""
     model_path, _, _ = source_model(source, seed, epochs, folder, base)
     cfg = ContinualConfig(seed=seed, frame_prior_mm=priors[0], moved_frame_prior_mm=priors[1])
     learner = load_learner(model_path, cfg)
-    p = prepare(read_dataset(target), test_fraction=0.1, seed=0, spec=learner.model.spec)
+    ds = read_dataset(target)
+    p = prepare(ds, test_fraction=0.1, seed=0, spec=learner.model.spec)
+    ds = in_frames(target_frames, source, ds, np.sort(p.train)[: cfg.init])
+    p = prepare(ds, test_fraction=0.1, seed=0, spec=learner.model.spec)
     stream, test = np.sort(p.train)[:n], np.sort(p.test)
     X, Y, Xte, Yte = p.X[stream], p.Y[stream], p.X[test], p.Y[test]
 
@@ -199,7 +237,8 @@ def whole_day(
 
 def split_days(path: str, folder: Path, gap_h: float) -> tuple[str, str]:
     """The series at ``path`` cut at its first pause of more than ``gap_h`` hours between two
-    points in recorded order, written to ``folder``: the day before, and the days after."""
+    points in recorded order, written to ``folder``: the day before, and the days after, each
+    in the frames its own points give."""
     ds = read_dataset(path)
     pauses = np.flatnonzero(np.diff(ds.table["t"].to_numpy(float)) > gap_h * 3600.0)
     if not pauses.size:
@@ -207,8 +246,9 @@ def split_days(path: str, folder: Path, gap_h: float) -> tuple[str, str]:
     cut, stem = pauses[0] + 1, Path(path).stem
     parts = (np.arange(cut), np.arange(cut, len(ds)))
     paths = [folder / f"{stem}_{name}.parquet" for name in ("before", "after")]
-    for rows, out in zip(parts, paths, strict=True):
-        write_dataset(ds.subset(rows), out)
+    desc = nominal_description(ds)
+    for rows, out in zip(parts, paths, strict=True):  # each day's frames from its own points
+        write_dataset(reframed(ds, desc, rows).subset(rows), out)
     return str(paths[0]), str(paths[1])
 
 
@@ -231,6 +271,12 @@ def main() -> None:
     ap.add_argument("--frame-prior-mm", type=float, default=FRAME_PRIOR_MM)
     ap.add_argument("--moved-frame-prior-mm", type=float, default=MOVED_FRAME_PRIOR_MM)
     ap.add_argument("--order", choices=("recorded", "spread"), default="recorded")
+    ap.add_argument(
+        "--target-frames",
+        choices=("carry", "series"),
+        default="carry",
+        help="the new series' T_W_0 from the carry's k points, or the importer's (every row)",
+    )
     ap.add_argument("--days", help="one series: carry its first day to the rest and back")
     ap.add_argument("--gap-h", type=float, default=4.0, help="--days: the pause that ends a day")
     ap.add_argument("--whole-day", type=int, help="stream this many of the new series' points")
@@ -243,10 +289,22 @@ def main() -> None:
         priors = args.frame_prior_mm, args.moved_frame_prior_mm
         a, b = split_days(args.days, folder, args.gap_h) if args.days else (args.a, args.b)
         directions = {"A->B": (a, b, args.base_a), "B->A": (b, a, args.base_b)}
+        # --days: one tracker set-up, so a day goes on in the frames the other one had
+        target_frames = "source" if args.days else args.target_frames
         for name, (src, dst, base) in directions.items():
             if args.whole_day:
                 days = [
-                    whole_day(src, dst, s, args.max_epochs, folder, base, priors, args.whole_day)
+                    whole_day(
+                        src,
+                        dst,
+                        s,
+                        args.max_epochs,
+                        folder,
+                        base,
+                        priors,
+                        args.whole_day,
+                        target_frames,
+                    )
                     for s in args.seeds
                 ]
                 out[name] = [
@@ -255,7 +313,9 @@ def main() -> None:
                 ]
                 continue
             runs = [
-                transfer(src, dst, s, args.max_epochs, folder, base, priors, args.order)
+                transfer(
+                    src, dst, s, args.max_epochs, folder, base, priors, args.order, target_frames
+                )
                 for s in args.seeds
             ]
             steps = [

@@ -22,14 +22,16 @@ orientation) is supported through :func:`fit_frames_positions`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from kinematics.dataset import Dataset
+from kinematics.description import RobotDescription
 from kinematics.error_stats import ErrorStats
-from kinematics.errors import ConfigError, IdentifiabilityError
+from kinematics.errors import ConfigError, DatasetError, IdentifiabilityError
 from kinematics.model import RobotModel
 from kinematics.transforms import (
     ARCMIN_PER_RAD,
@@ -47,6 +49,7 @@ __all__ = [
     "fit_frames",
     "fit_frames_positions",
     "identify_frames",
+    "reframed",
     "tracker_to_base",
 ]
 
@@ -258,6 +261,25 @@ def identify_frames(
         T_6_S_init=T_6_S_init,
         config=config,
     )
+
+
+def reframed(ds: Dataset, desc: RobotDescription, rows: np.ndarray) -> Dataset:
+    """``ds`` (tracker frame) with ``T_W_0`` and ``T_6_S`` identified from the points at
+    ``rows`` alone (nominal kinematics of ``desc``, started from the frames ``ds`` has): what a
+    new day knows of its frames from its first points. An importer fits them on every row, the
+    points a test scores included, and a carry held near those frames leans on that."""
+    if ds.meta.frame != "tracker":
+        raise DatasetError(f"reframed needs tracker-frame poses, the dataset's are {ds.meta.frame}")
+    rows = np.asarray(rows)
+    fit = identify_frames(
+        RobotModel(desc),
+        ds.q()[rows],
+        ds.measured_poses()[rows],
+        T_W_0_init=ds.meta.T_W_0,
+        T_6_S_init=ds.meta.T_6_S,
+    )
+    meta = replace(ds.meta, T_W_0=fit.T_W_0.tolist(), T_6_S=fit.T_6_S.tolist())
+    return Dataset(ds.table, meta)
 
 
 def _cost(B: np.ndarray, A: np.ndarray, W0: np.ndarray, S6: np.ndarray, w: float) -> float:

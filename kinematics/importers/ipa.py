@@ -215,10 +215,13 @@ def import_series(
     robot: str = "ur10",
     out: str | Path | None = None,
     progress: Callable[[str], None] | None = None,
+    frames_rows: int | None = None,
 ) -> IpaImport:
     """Import one series folder into the dataset format (tracker frame), identifying frames.
 
-    ``T_W_0`` and ``T_6_S`` come from :func:`kinematics.frames.fit_frames` on all rows, started
+    ``T_W_0`` and ``T_6_S`` come from :func:`kinematics.frames.fit_frames` on all rows (the first
+    ``frames_rows`` only, if given: what a new day knows of its frames from its first points,
+    before a model carried into it has seen the rest), started
     from the inverted ``Trafo_TM_F_init.txt`` and, where present, the hand-eye file. Writes
     ``out`` (``.parquet`` or ``.csv`` plus sidecar) when given. ``progress`` is called with the
     name of each finished stage (read, frames, table, write).
@@ -252,7 +255,12 @@ def import_series(
         extra["handeye_fit_mean_mm"] = he_fit.summary().mean_mm
     flange = RobotModel(desc).fk(q, frame="flange")
     progress("read")
-    fit = fit_frames(T_W_S, flange, T_W_0_init=W0_init, T_6_S_init=S6_init)
+    n = len(q) if frames_rows is None else frames_rows
+    if not 3 <= n <= len(q):
+        raise DatasetError(f"{path}: frames_rows must be in [3, {len(q)}] rows, got {n}")
+    if frames_rows is not None:
+        extra["frames_rows"] = n
+    fit = fit_frames(T_W_S[:n], flange[:n], T_W_0_init=W0_init, T_6_S_init=S6_init)
     progress("frames")
     extra["frame_fit"] = fit.summary().to_dict()
     extra["trafo_inverse_vs_T_6_S"] = _frame_gap(S6_init, fit.T_6_S)

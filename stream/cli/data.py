@@ -22,6 +22,14 @@ class ImportIpa(Command):
         parser.add_argument("folder", help="series folder, e.g. ../shared/data/ur10-ipa/Series_B")
         parser.add_argument("--out", required=True, help="dataset file to write (.parquet/.csv)")
         parser.add_argument("--robot", default="ur10", help="robot description (name or TOML)")
+        parser.add_argument(
+            "--frames-rows",
+            type=int,
+            default=None,
+            metavar="N",
+            help="identify T_W_0 and T_6_S from the first N rows only (default: every row); "
+            "for a new day a model is carried into, what its first points know",
+        )
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
@@ -35,7 +43,13 @@ class ImportIpa(Command):
                 bar.set_postfix_str(stage, refresh=False)
                 bar.update()
 
-            result = import_series(args.folder, robot=args.robot, out=args.out, progress=stage_done)
+            result = import_series(
+                args.folder,
+                robot=args.robot,
+                out=args.out,
+                progress=stage_done,
+                frames_rows=args.frames_rows,
+            )
         fit = result.fit.summary()
         meta = result.dataset.meta
         payload = {
@@ -48,6 +62,7 @@ class ImportIpa(Command):
             "T_W_0": meta.T_W_0,
             "T_6_S": meta.T_6_S,
             "noise_floor_m": meta.noise_floor_m,
+            "frames_rows": meta.extra.get("frames_rows", len(result.dataset)),
             "fit_mean_mm": fit.mean_mm,
             "fit_max_mm": fit.max_mm,
             "fit_mean_arcmin": fit.mean_arcmin,

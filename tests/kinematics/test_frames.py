@@ -1,21 +1,30 @@
 """Robot-world / hand-eye calibration on synthetic data from a real pinocchio UR10 model."""
 
 import numpy as np
+import pandas as pd
 import pytest
 from scipy.spatial.transform import Rotation
 
+from kinematics.dataset import Dataset, DatasetMeta
 from kinematics.description import load_description
-from kinematics.errors import ConfigError, IdentifiabilityError
+from kinematics.errors import ConfigError, DatasetError, IdentifiabilityError
 from kinematics.frames import (
+    FrameFit,
     FrameFitConfig,
     closed_form_axzb,
     fit_frames,
     fit_frames_positions,
     identify_frames,
+    reframed,
     tracker_to_base,
 )
 from kinematics.model import RobotModel
-from kinematics.transforms import invert, transform, transform_from_xyz_rpy
+from kinematics.transforms import (
+    invert,
+    transform,
+    transform_from_xyz_rpy,
+    xyz_quat_from_transform,
+)
 
 T_W_0 = transform_from_xyz_rpy([2.4, -1.3, -1.2], [0.01, -0.02, -0.52])
 T_6_S = transform_from_xyz_rpy([0.0004, -0.0006, 0.093], [0.002, -0.001, -1.5716])
@@ -147,3 +156,42 @@ def test_identify_frames_from_joint_angles():
     q = np.random.default_rng(2).uniform(-2.0, 2.0, (30, 6))
     fit = identify_frames(model, q, T_W_0[None] @ model.fk(q, frame="flange") @ T_6_S[None])
     assert max(frame_gap(fit.T_W_0, T_W_0)) < 1e-9 and max(frame_gap(fit.T_6_S, T_6_S)) < 1e-9
+
+
+def tracker_dataset(T_W_S: np.ndarray, q: np.ndarray, frames_fit: FrameFit) -> Dataset:
+    """A tracker-frame dataset of poses ``T_W_S`` at angles ``q``, its frames ``frames_fit``'s."""
+    xyz, quat = xyz_quat_from_transform(T_W_S)
+    columns = {"t": np.arange(len(q), dtype=float)}
+    columns |= {f"q{i + 1}": q[:, i] for i in range(6)}
+    columns |= dict(zip(("x", "y", "z", "qx", "qy", "qz", "qw"), [*xyz.T, *quat.T], strict=True))
+    meta = DatasetMeta(
+        robot="ur10",
+        frame="tracker",
+        T_W_0=frames_fit.T_W_0.tolist(),
+        T_6_S=frames_fit.T_6_S.tolist(),
+    )
+    return Dataset(pd.DataFrame(columns), meta)
+
+
+def test_a_day_reframed_on_its_first_points_has_their_frames_not_the_whole_days():
+    """A tracker bumped by 2 mm / 2 mrad halfway through a day: frames fitted on every row
+    (as an importer does) are neither; the day's first points alone give the first frames."""
+    model = RobotModel(load_description("ur10"))
+    q = np.random.default_rng(2).uniform(-np.pi, np.pi, (120, 6))
+    flange = model.fk(q, frame="flange")
+    bumped = transform_from_xyz_rpy([0.002, 0.0, -0.001], [0.002, 0.0, 0.0]) @ T_W_0
+    T_W_S = np.concatenate([T_W_0[None] @ flange[:60], bumped[None] @ flange[60:]]) @ T_6_S[None]
+    ds = tracker_dataset(T_W_S, q, fit_frames(T_W_S, flange, T_6_S_init=T_6_S))
+    assert frame_gap(np.asarray(ds.meta.T_W_0), T_W_0)[0] > 3e-4
+    first = reframed(ds, model.description, np.arange(30))
+    assert max(frame_gap(np.asarray(first.meta.T_W_0), T_W_0)) < 1e-8
+    assert max(frame_gap(np.asarray(first.meta.T_6_S), T_6_S)) < 1e-8
+    later = reframed(ds, model.description, np.arange(70, 120))
+    assert max(frame_gap(np.asarray(later.meta.T_W_0), bumped)) < 1e-8
+    assert first.table is ds.table and ds.meta.T_W_0 != first.meta.T_W_0
+
+
+def test_reframing_a_base_frame_dataset_is_refused_in_one_line():
+    ds = Dataset(pd.DataFrame({"t": [0.0]}), DatasetMeta(robot="ur10", frame="base"))
+    with pytest.raises(DatasetError, match="needs tracker-frame poses, the dataset's are base"):
+        reframed(ds, load_description("ur10"), np.arange(1))

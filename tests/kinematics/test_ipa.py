@@ -131,6 +131,25 @@ def test_missing_column_and_files(tmp_path):
         import_series(tmp_path / "T")
 
 
+def test_frames_from_the_first_rows_only(tmp_path):
+    """A tracker bumped 2 mm along x after the 30th row: frames from the first 30 rows are the
+    first set-up's, frames from every row are neither set-up's."""
+    write_series(tmp_path / "S", n=60)
+    csv = tmp_path / "S" / "measurements_synthetic.csv"
+    frame = pd.read_csv(csv, sep=";", decimal=",")
+    frame.loc[30:, "measurement_x"] += 2.0
+    frame.to_csv(csv, sep=";", decimal=",", index=False)
+    first = import_series(tmp_path / "S", frames_rows=30).dataset
+    assert gap(np.asarray(first.meta.T_W_0), T_W_0) < 1e-7
+    assert gap(np.asarray(first.meta.T_6_S), T_6_S) < 1e-7
+    assert first.meta.extra["frames_rows"] == 30 and len(first) == 60
+    every = import_series(tmp_path / "S").dataset
+    assert gap(np.asarray(every.meta.T_W_0), T_W_0) > 5e-4
+    assert "frames_rows" not in every.meta.extra
+    with pytest.raises(DatasetError, match=r"frames_rows must be in \[3, 60\] rows, got 2"):
+        import_series(tmp_path / "S", frames_rows=2)
+
+
 @pytest.mark.shared_data
 def test_real_series_b(shared_data, tmp_path):
     result = import_series(shared_data / "ur10-ipa" / "Series_B", out=tmp_path / "b.csv")

@@ -9,6 +9,7 @@ import pytest
 
 from kinematics.dataset import Dataset, DatasetMeta, meta_path, write_dataset
 from kinematics.description import load_description
+from kinematics.importers.ipa import import_series
 from kinematics.model import RobotModel
 from kinematics.transforms import xyz_quat_from_transform
 from stream.cli import main
@@ -95,3 +96,21 @@ def test_import_then_summarise_series_b(shared_data, tmp_path, capsys):
     # With frames identified from the data, the summary equals the fit residual.
     assert summary["mean_mm"] == pytest.approx(imported["fit_mean_mm"], rel=1e-9)
     assert 0.5 < summary["mean_mm"] < 1.5
+
+
+@pytest.mark.shared_data
+def test_import_a_new_days_frames_from_its_first_rows(shared_data, tmp_path, capsys):
+    """A new day imported as its start knows it: frames from its first 100 rows, which fit
+    those rows better and the whole series worse than frames from every row do."""
+    folder = shared_data / "ur10-ipa" / "Series_B"
+    out = tmp_path / "b100.parquet"
+    args = ["import", "ipa", str(folder), "--out", str(out), "--frames-rows", "100", "--json"]
+    assert main(args) == 0
+    imported = json.loads(capsys.readouterr().out)
+    assert imported["frames_rows"] == 100 and imported["n"] == 1495
+    every = import_series(folder).dataset
+    assert not np.allclose(imported["T_W_0"], every.meta.T_W_0, atol=1e-5)
+    assert main(["data", "summary", str(out), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["mean_mm"] > every.meta.extra["frame_fit"]["mean_mm"]
+    assert main([*args[:-3], "--frames-rows", "2"]) == 2
+    assert "frames_rows must be in [3, 1495] rows, got 2" in capsys.readouterr().err
