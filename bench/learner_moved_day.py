@@ -9,7 +9,9 @@ saw during the day) and the final model's mean, p95 and 90 % coverage on the day
 
 Cases: random arms of ``sim_sources.unseen`` (``--arms``; 1,200 points, a hidden effect of 8
 noise floors by seed, geometric error of 20; day 1 the poses with q1 below its median, day 2
-the rest with the tracker moved by 2 mm / 2 mrad and the tool by 1 mm / 1 mrad) and, with
+the rest with the tracker moved by 2 mm / 2 mrad and the tool by 1 mm / 1 mrad, in the old
+frames; with ``--day2 new-setup`` in the frame of a tracker set up anew, as the nominal model
+fits the day's first 50 training points: ``new_setup_day``) and, with
 ``--a`` / ``--b``, the real UR10 from Series A to Series B (nothing moved; the importer's
 registration differs per series). Source models: 300 epochs, geometric base, seed 0, cached
 in ``--cache``.
@@ -22,11 +24,14 @@ import argparse
 import json
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from kinematics.dataset import Dataset, read_dataset, write_dataset
+from kinematics.frames import reframed
 from kinematics.transforms import (
     transform_from_xyz_quat,
     transform_from_xyz_rpy,
@@ -35,7 +40,12 @@ from kinematics.transforms import (
 from learner.config import DEFAULT_BASE, ContinualConfig, TrainConfig
 from learner.continual import load_learner
 from learner.continual_records import prequential
-from learner.workflow import continual_on_dataset, train_on_dataset
+from learner.workflow import (
+    continual_on_dataset,
+    nominal_description,
+    prepare,
+    train_on_dataset,
+)
 from sim_sources.unseen import UnseenSpec, write_unseen
 from stream.reports.learner import write_trained
 
@@ -47,7 +57,10 @@ SETTINGS = {
     "defaults": {},
     "first points' frames": {"day_frame_points": 0},
     "no fresh network": {"day_refresh_growth": 0.0},
+    "new set-up": {"new_setup": True},
 }
+#: Where ``--day2 new-setup`` puts the tracker: metres from the old one, turned.
+NEW_SETUP = transform_from_xyz_rpy([2.5, -1.2, -0.8], [0.01, -0.02, 2.4])
 
 
 def moved_days(seed: int, folder: Path) -> tuple[Path, Path]:
@@ -74,6 +87,25 @@ def moved_days(seed: int, folder: Path) -> tuple[Path, Path]:
     later[["x", "y", "z"]], later[["qx", "qy", "qz", "qw"]] = xyz, quat
     write_dataset(Dataset(later, ds.meta), day2)
     return day1, day2
+
+
+def new_setup_day(day2: Path, init: int) -> Path:
+    """``day2`` seen by a tracker set up anew (written once beside it): its poses in the new
+    tracker's frame, whose ``T_W_0`` the day knows only as the nominal model's fit to its first
+    ``init`` training points (:func:`kinematics.frames.reframed`), the points a carry starts on."""
+    path = day2.with_name(f"{day2.stem}_setup{init}.parquet")
+    if path.is_file():
+        return path
+    ds = read_dataset(day2)
+    t = ds.table.copy()
+    T = NEW_SETUP[None] @ transform_from_xyz_quat(
+        t[["x", "y", "z"]].to_numpy(), t[["qx", "qy", "qz", "qw"]].to_numpy()
+    )
+    t[["x", "y", "z"]], t[["qx", "qy", "qz", "qw"]] = xyz_quat_from_transform(T)
+    seen = Dataset(t, replace(ds.meta, frame="tracker", T_W_0=NEW_SETUP.tolist()))
+    train = np.sort(prepare(seen, test_fraction=0.1, seed=0).train)
+    write_dataset(reframed(seen, nominal_description(seen), train[:init]), path)
+    return path
 
 
 def source_model(day: Path, folder: Path, epochs: int) -> Path:
@@ -114,12 +146,21 @@ def main() -> None:
     ap.add_argument("--max-epochs", type=int, default=300)
     ap.add_argument("--cache", help="folder keeping the days and source models between runs")
     ap.add_argument("--settings", nargs="+", choices=list(SETTINGS), default=list(SETTINGS))
+    ap.add_argument(
+        "--day2",
+        choices=("moved", "new-setup"),
+        default="moved",
+        help="the arms' day 2 seen by the moved tracker in the old frames, or by one set up anew",
+    )
     args = ap.parse_args()
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(args.cache or tmp)
         folder.mkdir(parents=True, exist_ok=True)
         cases = {f"arm {s} ({EFFECTS[s % 4]})": moved_days(s, folder) for s in args.arms}
+        if args.day2 == "new-setup":
+            init = ContinualConfig().init
+            cases = {k: (d1, new_setup_day(d2, init)) for k, (d1, d2) in cases.items()}
         if args.a and args.b:
             cases["UR10 A -> B"] = Path(args.a), Path(args.b)
         out = {}

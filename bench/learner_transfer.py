@@ -15,7 +15,9 @@ the model's scale times the ``drift_scale`` its training measured) with the 90 %
 trusted ones. Both directions, ``--seeds`` seeds. ``--cache DIR`` keeps the trained source models
 (by series, base, seed and epochs) for the next run. ``--base-a`` / ``--base-b`` are the source
 models' bases (a kind or a model file, e.g. ``robocal gap``'s), ``--frame-prior-mm`` /
-``--moved-frame-prior-mm`` the carry's frame priors (equal: no choice; ``ContinualConfig``);
+``--moved-frame-prior-mm`` the carry's frame priors (equal: no choice; ``ContinualConfig``),
+``--new-setup`` carries as ``continual --new-setup`` does (the tracker's frame free, not with
+``--days``);
 ``frames_moved`` is the share of seeds whose carry took the frames as moved. ``--order spread``
 draws the k points at random from the new series instead (seeded): a day that starts with a
 reference program over the workspace. ``--target-frames carry`` (the default) gives the new
@@ -116,7 +118,7 @@ def transfer(
     epochs: int,
     folder: Path,
     base: str,
-    priors: tuple,
+    priors: dict,
     order: str = "recorded",
     target_frames: str = "carry",
 ) -> dict:
@@ -124,7 +126,7 @@ def transfer(
     the new series' points in ``order`` (``recorded`` or ``spread``), in the data frames
     ``target_frames`` names (:func:`in_frames`)."""
     model_path, model, source_mm = source_model(source, seed, epochs, folder, base)
-    cfg = ContinualConfig(seed=seed, frame_prior_mm=priors[0], moved_frame_prior_mm=priors[1])
+    cfg = ContinualConfig(seed=seed, **priors)
     p_src = prepare(read_dataset(source), test_fraction=0.1, seed=seed, spec=model.spec)
     epi_src = np.sqrt(model.predict(p_src.X[p_src.test]).epistemic()[:, :3]).mean()
     target_ds = read_dataset(target)
@@ -186,7 +188,7 @@ def whole_day(
     epochs: int,
     folder: Path,
     base: str,
-    priors: tuple,
+    priors: dict,
     n: int,
     target_frames: str = "carry",
 ) -> list[dict]:
@@ -194,7 +196,7 @@ def whole_day(
     points in recorded order (``--whole-day``), in the data frames ``target_frames`` names
     (:func:`in_frames`; ``carry``: the carry's ``init`` points): one row per update."""
     model_path, _, _ = source_model(source, seed, epochs, folder, base)
-    cfg = ContinualConfig(seed=seed, frame_prior_mm=priors[0], moved_frame_prior_mm=priors[1])
+    cfg = ContinualConfig(seed=seed, **priors)
     learner = load_learner(model_path, cfg)
     ds = read_dataset(target)
     p = prepare(ds, test_fraction=0.1, seed=0, spec=learner.model.spec)
@@ -277,6 +279,7 @@ def main() -> None:
         default="carry",
         help="the new series' T_W_0 from the carry's k points, or the importer's (every row)",
     )
+    ap.add_argument("--new-setup", action="store_true", help="carry as a new tracker set-up")
     ap.add_argument("--days", help="one series: carry its first day to the rest and back")
     ap.add_argument("--gap-h", type=float, default=4.0, help="--days: the pause that ends a day")
     ap.add_argument("--whole-day", type=int, help="stream this many of the new series' points")
@@ -286,7 +289,11 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(args.cache or tmp)
         folder.mkdir(parents=True, exist_ok=True)
-        priors = args.frame_prior_mm, args.moved_frame_prior_mm
+        priors = {
+            "frame_prior_mm": args.frame_prior_mm,
+            "moved_frame_prior_mm": args.moved_frame_prior_mm,
+            "new_setup": args.new_setup and not args.days,
+        }
         a, b = split_days(args.days, folder, args.gap_h) if args.days else (args.a, args.b)
         directions = {"A->B": (a, b, args.base_a), "B->A": (b, a, args.base_b)}
         # --days: one tracker set-up, so a day goes on in the frames the other one had

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numpy as np
 
@@ -35,10 +36,31 @@ from kinematics.errors import IdentifiabilityError
 from kinematics.identification.fitting import FitResult, fit_effects, jacobian, tool_motion_rms
 from kinematics.model import RobotModel
 from learner.base import AUTO_MAX_CONDITION, PhysicsBase, nominal_base
-from learner.config import FRAME_PRIOR_MM
+from learner.config import FRAME_PRIOR_MM, MOVED_FRAME_PRIOR_MM, ContinualConfig
 from learner.features import FeatureSpec
 from learner.model import ErrorModel
 from learner.snapshot import copy_model
+
+
+@dataclass(frozen=True)
+class FramePriors:
+    """How far a carried base's frames may move on a new day's first points (m, RMS tool
+    motion of one standard deviation): ``held_m`` unless they show a move, ``moved_m`` then.
+    ``tracker_free``: the tracker was set up anew for the day, so its frame (``T_0_B``) is
+    fitted freely and only the tool is held. A new set-up's ``T_W_0`` comes from a fit of the
+    nominal model to its first points, which folds their region's error in: held near it,
+    UR10 B's model on A's first 10 points was 1.73 mm off (BENCHMARKS.md, "A new set-up's
+    frames from its own first points")."""
+
+    held_m: float = FRAME_PRIOR_MM * 1e-3
+    moved_m: float = MOVED_FRAME_PRIOR_MM * 1e-3
+    tracker_free: bool = False
+
+    @classmethod
+    def of(cls, cfg: ContinualConfig) -> FramePriors:
+        """The priors a continual learner's settings name (``frame_prior_mm``,
+        ``moved_frame_prior_mm``, ``new_setup``)."""
+        return cls(cfg.frame_prior_mm * 1e-3, cfg.moved_frame_prior_mm * 1e-3, cfg.new_setup)
 
 
 def reidentify_frames(
@@ -50,13 +72,14 @@ def reidentify_frames(
     *,
     residual: np.ndarray | None = None,
     prior_m: float | None = FRAME_PRIOR_MM * 1e-3,
+    tracker_free: bool = False,
 ) -> PhysicsBase:
     """The base with ``T_0_B``, its tool and (``offsets``) the joint offsets re-identified from
     ``X, Y`` (a new day's first points), the rest of its kinematics and its effects held: the
     tracker moved, the tool was re-mounted, an encoder was re-referenced. Only the parameters
     these points identify are fitted (pivoted QR, as in calibration), as a MAP estimate under a
     prior centred on the base's own frames (``prior_m``, m: :data:`~learner.config.FRAME_PRIOR_MM`
-    by default; ``None``: least squares).
+    by default; ``None``: least squares; ``tracker_free``: none on ``T_0_B``).
     ``residual`` (N, 6), what the network adds to the base at ``X``, is taken off the labels
     first, so the frames are fitted to what the base should explain. A nominal base becomes a
     ``frames`` base. Offsets are off by default: from a new day's first 10-100 UR10 points
@@ -78,6 +101,8 @@ def reidentify_frames(
     prior_std = None
     if prior_m is not None:  # each parameter: what moves the tool by prior_m (RMS) here
         prior_std = prior_m / tool_motion_rms(J[:, list(kept.kept_index)])
+        if tracker_free:  # T_0_B's six parameters come before the tool's
+            prior_std[np.asarray(frames.free) < 5 * n + 6] = np.inf
     blocks = [(frames, np.zeros(len(kept.kept))), *held]
     fit = fit_effects(base.model, obs, blocks, prior_std=prior_std)
     calibrated, T_0_B = apply_calibration(desc, obs.T_W_0, frames.full(fit.params[0]))
@@ -120,28 +145,32 @@ def carried_frames(
     X: np.ndarray,
     Y: np.ndarray,
     residual: np.ndarray,
-    prior_m: float,
-    moved_prior_m: float,
+    priors: FramePriors,
 ) -> tuple[PhysicsBase, bool]:
     """A carried base's frames from a new day's first points ``X, Y`` (``residual``: what the
-    network adds there) and whether they moved: held near the old ones (``prior_m``) unless
-    the points show that the tracker or tool moved: frames fitted under the loose
-    ``moved_prior_m`` move the predicted positions by more than :data:`MOVE_EVIDENCE` times
-    what they leave unexplained. The base's note says which and why."""
+    network adds there) and whether they moved: held near the old ones (``priors.held_m``)
+    unless the points show that the tracker or tool moved: frames fitted under the loose
+    ``priors.moved_m`` move the predicted positions by more than :data:`MOVE_EVIDENCE` times
+    what they leave unexplained (the tracker's frame free in both where ``priors`` say it was
+    set up anew). The base's note says which and why."""
     nominal = RobotModel(spec.description)
-    before = base.error(spec, X, nominal)[:, :3]
-    moved = reidentify_frames(base, spec, X, Y, residual=residual, prior_m=moved_prior_m)
+    free = priors.tracker_free
+    fit = partial(reidentify_frames, base, spec, X, Y, residual=residual, tracker_free=free)
+    held = fit(prior_m=priors.held_m)
+    before = held.error(spec, X, nominal)[:, :3] if free else base.error(spec, X, nominal)[:, :3]
+    moved = fit(prior_m=priors.moved_m)
     after = moved.error(spec, X, nominal)[:, :3]
     shift = float(np.sqrt(np.mean(np.sum((after - before) ** 2, axis=1))))
     left = np.asarray(Y, dtype=float)[:, :3] - residual[:, :3] - after
     rms = float(np.sqrt(np.mean(np.sum(left**2, axis=1))))
     is_moved = shift > MOVE_EVIDENCE * rms
-    if not is_moved and prior_m != moved_prior_m:
-        moved = reidentify_frames(base, spec, X, Y, residual=residual, prior_m=prior_m)
+    if not is_moved:
+        moved = held
     verdict, side = ("moved", "over") if is_moved else ("held near the old ones", "under")
     note = (
-        f"frames {verdict} on {len(X)} new points (a free move of {1e3 * shift:.3f} mm against "
-        f"{1e3 * rms:.3f} mm left, {side} the {MOVE_EVIDENCE:g} x that shows a move)"
+        f"{'tracker set up anew, its frame free; ' if free else ''}frames {verdict} on {len(X)} "
+        f"new points (a free move of {1e3 * shift:.3f} mm against {1e3 * rms:.3f} mm left, "
+        f"{side} the {MOVE_EVIDENCE:g} x that shows a move)"
     )
     return replace(moved, note=f"{base.note}; {note}" if base.note else note), is_moved
 
@@ -252,7 +281,7 @@ def held_out_labels(
     X: np.ndarray,
     Y: np.ndarray,
     residual: np.ndarray,
-    prior_m: float,
+    priors: FramePriors,
     fitted: PhysicsBase,
     folds: int = 5,
 ) -> np.ndarray:
@@ -268,7 +297,13 @@ def held_out_labels(
     for fold in np.array_split(np.arange(len(X)), min(folds, len(X))):
         rest = np.setdiff1d(np.arange(len(X)), fold)
         without = reidentify_frames(
-            base, spec, X[rest], Y[rest], residual=residual[rest], prior_m=prior_m
+            base,
+            spec,
+            X[rest],
+            Y[rest],
+            residual=residual[rest],
+            prior_m=priors.moved_m,
+            tracker_free=priors.tracker_free,
         )
         out[fold] -= without.error(spec, X[fold], nominal)
     return out

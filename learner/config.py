@@ -254,7 +254,10 @@ class ContinualConfig:
     points, ``moved_frame_prior_mm`` how far when those points show that the tracker or tool
     moved (:meth:`ContinualLearner.carry`, :func:`learner.carry.carried_frames`); the day's
     frames are fitted again each time its trained points double, up to ``day_frame_points``
-    of them (0: the first points' frames stay).
+    of them (0: the first points' frames stay). ``new_setup``: the tracker was set up anew
+    for the carried day, so its frame is fitted freely on the day's points, the tool alone
+    held (:class:`learner.carry.FramePriors`): its ``T_W_0`` is the nominal model's fit to its
+    first points, and held near that UR10 B's model was 1.73 mm off A after A's first 10.
     ``aci_rate`` is the step of the adaptive conformal interval scale per new point outside
     (or inside) the ``aci_level`` interval, in log units (0 turns it off; it never narrows
     the intervals below the held-out calibration, :mod:`learner.conformal`).
@@ -286,6 +289,7 @@ class ContinualConfig:
     frame_prior_mm: float = FRAME_PRIOR_MM
     moved_frame_prior_mm: float = MOVED_FRAME_PRIOR_MM
     day_frame_points: int = DAY_FRAME_POINTS
+    new_setup: bool = False
     refresh_growth: float = 0.0
     day_refresh_growth: float = 2.0
     seed: int = 0
@@ -334,6 +338,10 @@ class ContinualConfig:
         _check(
             0.0 <= self.aci_rate <= 1.0,
             f"continual.aci_rate must be in [0, 1], got {self.aci_rate}",
+        )
+        _check(
+            isinstance(self.new_setup, bool),
+            f"continual.new_setup must be true or false, got {self.new_setup!r}",
         )
         _check(
             0.0 < self.aci_level < 1.0,

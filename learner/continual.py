@@ -39,6 +39,7 @@ from learner.base import PhysicsBase, identify_base, nominal_base
 from learner.carry import (
     MIN_DAY_POINTS,
     CarriedDay,
+    FramePriors,
     carried_frames,
     held_out_labels,
     hold_day,
@@ -269,8 +270,8 @@ class ContinualLearner:
         needed, miss = scale_needed(self.model, X, Y)
         young = self.day_scale is not None and len(self._cal_x) < MIN_DAY_POINTS
         drift = np.ones_like(self.model.drift_scale) if young else self.model.drift_scale
-        spec, residual, priors = self.model.spec, self.model.residual(X), self._frame_priors
-        old, (base, moved) = self.base, carried_frames(self.base, spec, X, Y, residual, *priors)
+        spec, residual, priors = self.model.spec, self.model.residual(X), FramePriors.of(self.cfg)
+        old, (base, moved) = self.base, carried_frames(self.base, spec, X, Y, residual, priors)
         self.day = CarriedDay.start(old, len(X), spec.n_features, self.n_seen)
         self.rebase(base)
         self._cal_x, self._cal_y = self._cal_x[:0], self._cal_y[:0]
@@ -279,17 +280,13 @@ class ContinualLearner:
         self.model.unverified = unverified(moved, miss / position_factor(drift), len(X))
         if moved:
             needed = self.model.calibrate(
-                X, held_out_labels(old, spec, X, Y, residual, priors[1], base)
+                X, held_out_labels(old, spec, X, Y, residual, priors, base)
             )
         if self.model.unverified:
             scale = np.maximum(scale, needed)
         self.model.interval_scale = scale
         self.day_scale = scale / np.exp(self.aci_log_scale)
         return self.trained.residual_gain
-
-    @property
-    def _frame_priors(self) -> tuple[float, float]:
-        return self.cfg.frame_prior_mm * 1e-3, self.cfg.moved_frame_prior_mm * 1e-3
 
     def rebase(self, base: PhysicsBase, keep: np.ndarray | None = None) -> None:
         """Put both models on a new physics base (e.g. frames re-identified on a new day); the
@@ -319,7 +316,7 @@ class ContinualLearner:
             return
         spec, residual = self.model.spec, self.model.residual(day.x)
         base, _ = carried_frames(
-            day.source(self.base), spec, day.x, day.y, residual, *self._frame_priors
+            day.source(self.base), spec, day.x, day.y, residual, FramePriors.of(self.cfg)
         )
         self.rebase(base, keep=day.holds(self._mem_x))
         self.day = replace(day, fitted=len(day.x))

@@ -149,6 +149,12 @@ class Continual(Command):
             help="go on from this model (with its replay memory when its .state.safetensors is "
             "beside it); its frames are re-identified from the first --init points",
         )
+        parser.add_argument(
+            "--new-setup",
+            action="store_true",
+            help="with --from: the tracker was set up anew for this day (its frames from its "
+            "first points, e.g. import ipa --frames-rows): fit its frame freely, hold the tool",
+        )
         add_base_argument(parser, ContinualConfig().base, STREAM_BASE_KINDS)
         add_json_flag(parser)
 
@@ -162,7 +168,8 @@ class Continual(Command):
         from stream.reports.learner import write_continual
 
         ds = read_dataset(args.data)
-        cfg = ContinualConfig(**{n: getattr(args, n) for n in _CONTINUAL_OPTIONS}, seed=args.seed)
+        options = {n: getattr(args, n) for n in _CONTINUAL_OPTIONS}
+        cfg = ContinualConfig(**options, new_setup=args.new_setup, seed=args.seed)
         start = None if args.start is None else load_learner(args.start, cfg)
         n_updates = 1 + -(
             -max(0, round(len(ds) * (1 - args.test_fraction)) - cfg.init) // cfg.batch

@@ -249,6 +249,8 @@ def test_continual_goes_on_from_a_model_with_its_memory(data_file, tmp_path, cap
     assert 0.0 < pooled <= 1.0
     model = load_snapshot(second)
     assert model.base_kind == "geometric" and model.is_fitted
+    out = _continual(capsys, data_file, second, *carry, "--new-setup")  # the tracker's frame free
+    assert "tracker set up anew, its frame free; frames held" in out["base"]["note"]
     argv = ["continual", "--data", str(data_file), "--out", str(second), *carry]
     assert main([*argv, "--frame-prior-mm", "0"]) == 2
     assert "frame_prior_mm must be > 0" in capsys.readouterr().err
