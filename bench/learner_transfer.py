@@ -134,11 +134,14 @@ def transfer(
     stream = np.sort(p.train)
     if order == "spread":
         stream = np.random.default_rng(seed).permutation(p.train)
+    if target_frames == "source":  # the same at every k
+        ds_src = in_frames("source", source, target_ds, stream)
+        p = prepare(ds_src, test_fraction=0.1, seed=0, spec=model.spec)
     rows = []
     for k in STEPS:
-        frames = "series" if k == 0 and target_frames == "carry" else target_frames
-        ds_k = in_frames(frames, source, target_ds, stream[:k])
-        p = prepare(ds_k, test_fraction=0.1, seed=0, spec=model.spec)
+        if k and target_frames == "carry":  # k = 0 keeps the importer's, prepared above
+            ds_k = in_frames("carry", source, target_ds, stream[:k])
+            p = prepare(ds_k, test_fraction=0.1, seed=0, spec=model.spec)
         X, Y, Xte, Yte = p.X[stream], p.Y[stream], p.X[p.test], p.Y[p.test]
         learner = load_learner(model_path, cfg)
         t0 = time.perf_counter()
@@ -200,8 +203,9 @@ def whole_day(
     learner = load_learner(model_path, cfg)
     ds = read_dataset(target)
     p = prepare(ds, test_fraction=0.1, seed=0, spec=learner.model.spec)
-    ds = in_frames(target_frames, source, ds, np.sort(p.train)[: cfg.init])
-    p = prepare(ds, test_fraction=0.1, seed=0, spec=learner.model.spec)
+    if target_frames != "series":
+        ds = in_frames(target_frames, source, ds, np.sort(p.train)[: cfg.init])
+        p = prepare(ds, test_fraction=0.1, seed=0, spec=learner.model.spec)
     stream, test = np.sort(p.train)[:n], np.sort(p.test)
     X, Y, Xte, Yte = p.X[stream], p.Y[stream], p.X[test], p.Y[test]
 

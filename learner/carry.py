@@ -156,16 +156,16 @@ def carried_frames(
     nominal = RobotModel(spec.description)
     free = priors.tracker_free
     fit = partial(reidentify_frames, base, spec, X, Y, residual=residual, tracker_free=free)
-    held = fit(prior_m=priors.held_m)
-    before = held.error(spec, X, nominal)[:, :3] if free else base.error(spec, X, nominal)[:, :3]
+    held = fit(prior_m=priors.held_m) if free else None  # a free tracker moves from its own fit
+    before = (base if held is None else held).error(spec, X, nominal)[:, :3]
     moved = fit(prior_m=priors.moved_m)
     after = moved.error(spec, X, nominal)[:, :3]
     shift = float(np.sqrt(np.mean(np.sum((after - before) ** 2, axis=1))))
     left = np.asarray(Y, dtype=float)[:, :3] - residual[:, :3] - after
     rms = float(np.sqrt(np.mean(np.sum(left**2, axis=1))))
     is_moved = shift > MOVE_EVIDENCE * rms
-    if not is_moved:
-        moved = held
+    if not is_moved and priors.held_m != priors.moved_m:
+        moved = fit(prior_m=priors.held_m) if held is None else held
     verdict, side = ("moved", "over") if is_moved else ("held near the old ones", "under")
     note = (
         f"{'tracker set up anew, its frame free; ' if free else ''}frames {verdict} on {len(X)} "

@@ -256,9 +256,9 @@ def import_series(
     flange = RobotModel(desc).fk(q, frame="flange")
     progress("read")
     n = len(q) if frames_rows is None else frames_rows
-    if not 3 <= n <= len(q):
-        raise DatasetError(f"{path}: frames_rows must be in [3, {len(q)}] rows, got {n}")
     if frames_rows is not None:
+        if not 3 <= n <= len(q):
+            raise DatasetError(f"{path}: frames_rows must be in [3, {len(q)}] rows, got {n}")
         extra["frames_rows"] = n
     fit = fit_frames(T_W_S[:n], flange[:n], T_W_0_init=W0_init, T_6_S_init=S6_init)
     progress("frames")
