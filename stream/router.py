@@ -61,7 +61,10 @@ def run_router(zc: zenoh.Config, on_start: Callable[[list[str]], None] | None = 
         try:
             if on_start is not None:
                 on_start(json.loads(zc.get_json("listen/endpoints")))
-            stop.wait()
+            # Polled, not one blocking wait: SIGTERM may land on one of zenoh's threads, and a
+            # main thread blocked without a timeout would then never run the handler.
+            while not stop.wait(0.2):
+                pass
         finally:
             session.close()
     finally:

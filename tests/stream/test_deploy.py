@@ -100,6 +100,32 @@ def test_robocal_router_serves_the_shipped_config_until_sigterm(tmp_path):
         proc.kill()
 
 
+# SIGTERM is process-directed: Linux may hand it to any thread, one of zenoh's among them.
+# Python then runs the handler only when the main thread next runs bytecode; a main thread
+# blocked in one untimed wait never does (CI saw the router hang 30 s this way).
+SIGNAL_ON_ANOTHER_THREAD = """
+import signal, sys, threading, time
+from stream.router import router_config, run_router
+
+def kill_from_a_helper_thread(endpoints):
+    def send():
+        time.sleep(0.3)
+        signal.pthread_kill(threading.get_ident(), signal.SIGTERM)
+    threading.Thread(target=send, daemon=True).start()
+
+zc = router_config(sys.argv[1], ("tls/127.0.0.1:" + sys.argv[2],), sys.argv[3])
+sys.exit(run_router(zc, kill_from_a_helper_thread))
+"""
+
+
+@pytest.mark.integration
+def test_robocal_router_stops_when_sigterm_lands_on_another_thread(tmp_path):
+    make_line_certs(tmp_path, ("router",))
+    config, port = str(DEPLOY / "zenohd.json5"), str(free_port())
+    args = [sys.executable, "-c", SIGNAL_ON_ANOTHER_THREAD, config, port, str(tmp_path)]
+    assert subprocess.run(args, cwd=DEPLOY.parent, timeout=30).returncode == 0
+
+
 def test_robocal_router_refuses_unreadable_certificates_in_one_line(tmp_path, capsys):
     args = ["router", "--config", str(DEPLOY / "zenohd.json5"), "--certs", str(tmp_path)]
     assert main(args) == 2
