@@ -11,7 +11,8 @@ Cases: random arms of ``sim_sources.unseen`` (``--arms``; 1,200 points, a hidden
 noise floors by seed, geometric error of 20; day 1 the poses with q1 below its median, day 2
 the rest with the tracker moved by 2 mm / 2 mrad and the tool by 1 mm / 1 mrad, in the old
 frames; with ``--day2 new-setup`` in the frame of a tracker set up anew, as the nominal model
-fits the day's first 50 training points: ``new_setup_day``) and, with
+fits the day's first 50 training points: ``new_setup_day``; with ``--day2 reference`` a day that
+starts with a reference program of 100 poses, its frames from them) and, with
 ``--a`` / ``--b``, the real UR10 from Series A to Series B (nothing moved; the importer's
 registration differs per series). Source models: 300 epochs, geometric base, seed 0, cached
 in ``--cache``.
@@ -32,6 +33,7 @@ import torch
 
 from kinematics.dataset import Dataset, read_dataset, write_dataset
 from kinematics.frames import reframed
+from kinematics.reference import reference_order
 from kinematics.transforms import (
     transform_from_xyz_quat,
     transform_from_xyz_rpy,
@@ -58,7 +60,12 @@ SETTINGS = {
     "first points' frames": {"day_frame_points": 0},
     "no fresh network": {"day_refresh_growth": 0.0},
     "new set-up": {"new_setup": True},
+    "new set-up, init 100": {"new_setup": True, "init": 100},
+    "reference program": {"new_setup": True, "reference_program": True, "init": 100},
 }
+#: ``--day2 reference``: the reference program's poses, chosen among the day's first this many
+#: training points (``kinematics.reference.reference_order``).
+REFERENCE_POSES, REFERENCE_WINDOW = 100, 400
 #: Where ``--day2 new-setup`` puts the tracker: metres from the old one, turned.
 NEW_SETUP = transform_from_xyz_rpy([2.5, -1.2, -0.8], [0.01, -0.02, 2.4])
 
@@ -89,11 +96,15 @@ def moved_days(seed: int, folder: Path) -> tuple[Path, Path]:
     return day1, day2
 
 
-def new_setup_day(day2: Path, init: int) -> Path:
+def new_setup_day(day2: Path, init: int, reference: bool = False) -> Path:
     """``day2`` seen by a tracker set up anew (written once beside it): its poses in the new
     tracker's frame, whose ``T_W_0`` the day knows only as the nominal model's fit to its first
-    ``init`` training points (:func:`kinematics.frames.reframed`), the points a carry starts on."""
-    path = day2.with_name(f"{day2.stem}_setup{init}.parquet")
+    ``init`` training points (:func:`kinematics.frames.reframed`), the points a carry starts on.
+    With ``reference`` those are a reference program: the training rows' places are refilled so
+    that the :data:`REFERENCE_POSES` poses :func:`~kinematics.reference.reference_order` picks
+    among the first :data:`REFERENCE_WINDOW` come first, the rest after them in recorded order
+    (the test rows, drawn by place, stay the same)."""
+    path = day2.with_name(f"{day2.stem}_setup{init}{'_reference' if reference else ''}.parquet")
     if path.is_file():
         return path
     ds = read_dataset(day2)
@@ -104,6 +115,12 @@ def new_setup_day(day2: Path, init: int) -> Path:
     t[["x", "y", "z"]], t[["qx", "qy", "qz", "qw"]] = xyz_quat_from_transform(T)
     seen = Dataset(t, replace(ds.meta, frame="tracker", T_W_0=NEW_SETUP.tolist()))
     train = np.sort(prepare(seen, test_fraction=0.1, seed=0).train)
+    if reference:
+        early = train[:REFERENCE_WINDOW]
+        first = early[reference_order(seen.q()[early], REFERENCE_POSES)]
+        rows = np.arange(len(t))
+        rows[train] = np.concatenate([first, np.setdiff1d(train, first)])
+        seen = Dataset(t.iloc[rows].reset_index(drop=True), seen.meta)
     write_dataset(reframed(seen, nominal_description(seen), train[:init]), path)
     return path
 
@@ -148,9 +165,10 @@ def main() -> None:
     ap.add_argument("--settings", nargs="+", choices=list(SETTINGS), default=list(SETTINGS))
     ap.add_argument(
         "--day2",
-        choices=("moved", "new-setup"),
+        choices=("moved", "new-setup", "reference"),
         default="moved",
-        help="the arms' day 2 seen by the moved tracker in the old frames, or by one set up anew",
+        help="the arms' day 2 seen by the moved tracker in the old frames, or by one set up anew "
+        "(reference: and starting with a reference program, its frames from the program's poses)",
     )
     args = ap.parse_args()
     torch.set_num_threads(1)
@@ -158,9 +176,10 @@ def main() -> None:
         folder = Path(args.cache or tmp)
         folder.mkdir(parents=True, exist_ok=True)
         cases = {f"arm {s} ({EFFECTS[s % 4]})": moved_days(s, folder) for s in args.arms}
-        if args.day2 == "new-setup":
-            init = ContinualConfig().init
-            cases = {k: (d1, new_setup_day(d2, init)) for k, (d1, d2) in cases.items()}
+        if args.day2 != "moved":
+            reference = args.day2 == "reference"
+            init = REFERENCE_POSES if reference else ContinualConfig().init
+            cases = {k: (d1, new_setup_day(d2, init, reference)) for k, (d1, d2) in cases.items()}
         if args.a and args.b:
             cases["UR10 A -> B"] = Path(args.a), Path(args.b)
         out = {}

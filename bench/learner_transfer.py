@@ -17,10 +17,14 @@ trusted ones. Both directions, ``--seeds`` seeds. ``--cache DIR`` keeps the trai
 models' bases (a kind or a model file, e.g. ``robocal gap``'s), ``--frame-prior-mm`` /
 ``--moved-frame-prior-mm`` the carry's frame priors (equal: no choice; ``ContinualConfig``),
 ``--new-setup`` carries as ``continual --new-setup`` does (the tracker's frame free, not with
-``--days``);
+``--days``), ``--reference-program`` as ``continual --reference-program`` (the geometry fitted on
+the k points too);
 ``frames_moved`` is the share of seeds whose carry took the frames as moved. ``--order spread``
-draws the k points at random from the new series instead (seeded): a day that starts with a
-reference program over the workspace. ``--target-frames carry`` (the default) gives the new
+draws the k points at random from the whole new series instead (seeded; spread over its time
+too, which no day's start is); ``--order reference`` takes them in
+:func:`kinematics.reference.reference_order` from among its first ``--window`` training points
+(``robocal data reference-poses``): a day that starts with a reference program, measured in its
+first hours. ``--target-frames carry`` (the default) gives the new
 series its tracker frame ``T_W_0`` as identified from the carry's own k points
 (:func:`kinematics.frames.reframed`; k = 0 keeps the importer's), which is all a new day knows
 when it starts; ``series`` keeps the importer's, fitted on every row of the series, its test
@@ -30,14 +34,14 @@ hours (recorded order; UR10 Series A: its first 5,252 points, 18 h, then a 6.5 h
 rest, both ways: another day of the same cell, the tracker not set up anew, so the new day is
 in the frames the model's own day gave (each day's fitted on its own points).
 
-``--whole-day N`` streams the new series' first ``N`` training points after the carry instead:
-the carry on its first ``init`` points (``ContinualConfig``), then one update per ``batch`` of
-them from the first, as ``robocal continual --from`` does. After each update: the test mean, the
-90 % coverage, the untrusted share and the coverage of the trusted answers; the coverage of the
-update's own batch, scored before it was learned (prequential), with the share of it
+``--whole-day N`` streams the new series' first ``N`` training points after the carry instead (in
+recorded order): the carry on its first ``init`` points (``ContinualConfig``), then one update per
+``batch`` of them from the first, as ``robocal continual --from`` does. After each update: the test
+mean, the 90 % coverage, the untrusted share and the coverage of the trusted answers; the coverage
+of the update's own batch, scored before it was learned (prequential), with the share of it
 compensation would have trusted then and their coverage (what a line asking then got); and the
-coverage of the test points the stream has already passed in recorded order and of those still
-ahead of it.
+coverage of the test points the stream has already passed in recorded order and of those still ahead
+of it.
 
 
     .venv/bin/python bench/learner_transfer.py --a /tmp/a.parquet --b /tmp/b.parquet --seeds 0 1 2
@@ -49,7 +53,7 @@ import argparse
 import json
 import tempfile
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -57,6 +61,7 @@ import torch
 
 from kinematics.dataset import Dataset, read_dataset, write_dataset
 from kinematics.frames import reframed
+from kinematics.reference import reference_order
 from learner.carry import before_day
 from learner.config import (
     DEFAULT_BASE,
@@ -77,12 +82,34 @@ EPISTEMIC_LIMIT_MM = CompensationConfig().epistemic_limit_mm
 
 STEPS = (0, 10, 25, 50, 100)
 
+#: ``--order reference`` picks its points from the new series' first this many training points:
+#: UR10 Series A's first 1,101 rows (3.0 h), B's first 1,095 of 1,495 (its timestamps are lost).
+REFERENCE_WINDOW = 1000
 
-def source_model(
-    source: str, seed: int, epochs: int, folder: Path, base: str
-) -> tuple[Path, ErrorModel, float]:
-    """The model of ``source`` (trained on ``base``, ``epochs``, ``seed``), cached in
-    ``folder``: its file, the model and its test mean (mm)."""
+
+@dataclass(frozen=True)
+class Carry:
+    """One carry the bench measures: ``source``'s model (trained on ``base`` for ``epochs``
+    with ``seed``, cached in ``folder``) carried to ``target`` under the continual settings
+    ``priors``, on the new series' points in ``order`` (:func:`stream_order`), in the data
+    frames ``target_frames`` names (:func:`in_frames`)."""
+
+    source: str
+    target: str
+    seed: int
+    epochs: int
+    folder: Path
+    base: str
+    priors: dict
+    target_frames: str = "carry"
+    order: str = "recorded"
+    window: int = REFERENCE_WINDOW
+
+
+def source_model(run: Carry) -> tuple[Path, ErrorModel, float]:
+    """The model of ``run.source`` (trained on its ``base``, ``epochs``, ``seed``), cached in
+    its ``folder``: its file, the model and its test mean (mm)."""
+    source, seed, epochs, folder, base = run.source, run.seed, run.epochs, run.folder, run.base
     tag = "" if base == DEFAULT_BASE else f"_{Path(base).parent.name}_{Path(base).stem}"
     model_path = folder / f"{Path(source).stem}{tag}_seed{seed}_e{epochs}.safetensors"
     if model_path.is_file():
@@ -111,36 +138,38 @@ def in_frames(frames: str, source: str, target: Dataset, rows: np.ndarray) -> Da
     return target
 
 
-def transfer(
-    source: str,
-    target: str,
-    seed: int,
-    epochs: int,
-    folder: Path,
-    base: str,
-    priors: dict,
-    order: str = "recorded",
-    target_frames: str = "carry",
-) -> dict:
-    """One source model (trained on ``base``, cached in ``folder``) carried to ``target``, on
-    the new series' points in ``order`` (``recorded`` or ``spread``), in the data frames
-    ``target_frames`` names (:func:`in_frames`)."""
-    model_path, model, source_mm = source_model(source, seed, epochs, folder, base)
-    cfg = ContinualConfig(seed=seed, **priors)
-    p_src = prepare(read_dataset(source), test_fraction=0.1, seed=seed, spec=model.spec)
+def stream_order(run: Carry, target: Dataset, train: np.ndarray) -> np.ndarray:
+    """The new series' training rows ``train`` in the order the carry meets them: as recorded,
+    ``spread`` (shuffled over the whole series, seeded), or ``reference``: the first
+    ``max(STEPS)`` in :func:`kinematics.reference.reference_order` from among its first
+    ``run.window`` training points (a reference program measured when the day starts), then
+    the rest as recorded."""
+    recorded = np.sort(train)
+    if run.order == "spread":
+        return np.random.default_rng(run.seed).permutation(train)
+    if run.order == "reference":
+        early = recorded[: run.window]
+        first = early[reference_order(target.q()[early], min(max(STEPS), len(early)))]
+        return np.concatenate([first, np.setdiff1d(recorded, first)])
+    return recorded
+
+
+def transfer(run: Carry) -> dict:
+    """One carry (:class:`Carry`), measured after k = :data:`STEPS` of the new series' points."""
+    model_path, model, source_mm = source_model(run)
+    cfg = ContinualConfig(seed=run.seed, **run.priors)
+    p_src = prepare(read_dataset(run.source), test_fraction=0.1, seed=run.seed, spec=model.spec)
     epi_src = np.sqrt(model.predict(p_src.X[p_src.test]).epistemic()[:, :3]).mean()
-    target_ds = read_dataset(target)
+    target_ds = read_dataset(run.target)
     p = prepare(target_ds, test_fraction=0.1, seed=0, spec=model.spec)
-    stream = np.sort(p.train)
-    if order == "spread":
-        stream = np.random.default_rng(seed).permutation(p.train)
-    if target_frames == "source":  # the same at every k
-        ds_src = in_frames("source", source, target_ds, stream)
+    stream = stream_order(run, target_ds, p.train)
+    if run.target_frames == "source":  # the same at every k
+        ds_src = in_frames("source", run.source, target_ds, stream)
         p = prepare(ds_src, test_fraction=0.1, seed=0, spec=model.spec)
     rows = []
     for k in STEPS:
-        if k and target_frames == "carry":  # k = 0 keeps the importer's, prepared above
-            ds_k = in_frames("carry", source, target_ds, stream[:k])
+        if k and run.target_frames == "carry":  # k = 0 keeps the importer's, prepared above
+            ds_k = in_frames("carry", run.source, target_ds, stream[:k])
             p = prepare(ds_k, test_fraction=0.1, seed=0, spec=model.spec)
         X, Y, Xte, Yte = p.X[stream], p.Y[stream], p.X[p.test], p.Y[p.test]
         learner = load_learner(model_path, cfg)
@@ -184,27 +213,17 @@ def transfer(
     return {"source_test_mm": source_mm, "steps": rows}
 
 
-def whole_day(
-    source: str,
-    target: str,
-    seed: int,
-    epochs: int,
-    folder: Path,
-    base: str,
-    priors: dict,
-    n: int,
-    target_frames: str = "carry",
-) -> list[dict]:
-    """``source``'s model carried to ``target`` and streamed through its first ``n`` training
-    points in recorded order (``--whole-day``), in the data frames ``target_frames`` names
-    (:func:`in_frames`; ``carry``: the carry's ``init`` points): one row per update."""
-    model_path, _, _ = source_model(source, seed, epochs, folder, base)
-    cfg = ContinualConfig(seed=seed, **priors)
+def whole_day(run: Carry, n: int) -> list[dict]:
+    """One carry (:class:`Carry`, its points as recorded) streamed through the new series'
+    first ``n`` training points (``--whole-day``; data frames ``carry``: the carry's ``init``
+    points): one row per update."""
+    model_path, _, _ = source_model(run)
+    cfg = ContinualConfig(seed=run.seed, **run.priors)
     learner = load_learner(model_path, cfg)
-    ds = read_dataset(target)
+    ds = read_dataset(run.target)
     p = prepare(ds, test_fraction=0.1, seed=0, spec=learner.model.spec)
-    if target_frames != "series":
-        ds = in_frames(target_frames, source, ds, np.sort(p.train)[: cfg.init])
+    if run.target_frames != "series":
+        ds = in_frames(run.target_frames, run.source, ds, np.sort(p.train)[: cfg.init])
         p = prepare(ds, test_fraction=0.1, seed=0, spec=learner.model.spec)
     stream, test = np.sort(p.train)[:n], np.sort(p.test)
     X, Y, Xte, Yte = p.X[stream], p.Y[stream], p.X[test], p.Y[test]
@@ -276,7 +295,13 @@ def main() -> None:
     ap.add_argument("--base-b", default=DEFAULT_BASE, help="B's base: a kind or a model file")
     ap.add_argument("--frame-prior-mm", type=float, default=FRAME_PRIOR_MM)
     ap.add_argument("--moved-frame-prior-mm", type=float, default=MOVED_FRAME_PRIOR_MM)
-    ap.add_argument("--order", choices=("recorded", "spread"), default="recorded")
+    ap.add_argument("--order", choices=("recorded", "spread", "reference"), default="recorded")
+    ap.add_argument(
+        "--window",
+        type=int,
+        default=REFERENCE_WINDOW,
+        help="--order reference: choose among the new series' first N training points",
+    )
     ap.add_argument(
         "--target-frames",
         choices=("carry", "series"),
@@ -284,6 +309,11 @@ def main() -> None:
         help="the new series' T_W_0 from the carry's k points, or the importer's (every row)",
     )
     ap.add_argument("--new-setup", action="store_true", help="carry as a new tracker set-up")
+    ap.add_argument(
+        "--reference-program",
+        action="store_true",
+        help="carry as continual --reference-program does (with --order reference)",
+    )
     ap.add_argument("--days", help="one series: carry its first day to the rest and back")
     ap.add_argument("--gap-h", type=float, default=4.0, help="--days: the pause that ends a day")
     ap.add_argument("--whole-day", type=int, help="stream this many of the new series' points")
@@ -297,38 +327,36 @@ def main() -> None:
             "frame_prior_mm": args.frame_prior_mm,
             "moved_frame_prior_mm": args.moved_frame_prior_mm,
             "new_setup": args.new_setup and not args.days,
+            "reference_program": args.reference_program,
         }
         a, b = split_days(args.days, folder, args.gap_h) if args.days else (args.a, args.b)
         directions = {"A->B": (a, b, args.base_a), "B->A": (b, a, args.base_b)}
         # --days: one tracker set-up, so a day goes on in the frames the other one had
         target_frames = "source" if args.days else args.target_frames
         for name, (src, dst, base) in directions.items():
+            runs = [
+                Carry(
+                    src,
+                    dst,
+                    s,
+                    args.max_epochs,
+                    folder,
+                    base,
+                    priors,
+                    target_frames,
+                    args.order,
+                    args.window,
+                )
+                for s in args.seeds
+            ]
             if args.whole_day:
-                days = [
-                    whole_day(
-                        src,
-                        dst,
-                        s,
-                        args.max_epochs,
-                        folder,
-                        base,
-                        priors,
-                        args.whole_day,
-                        target_frames,
-                    )
-                    for s in args.seeds
-                ]
+                days = [whole_day(run, args.whole_day) for run in runs]
                 out[name] = [
                     {key: _mean([d[i][key] for d in days]) for key in days[0][i]}
                     for i in range(len(days[0]))
                 ]
                 continue
-            runs = [
-                transfer(
-                    src, dst, s, args.max_epochs, folder, base, priors, args.order, target_frames
-                )
-                for s in args.seeds
-            ]
+            runs = [transfer(run) for run in runs]
             steps = [
                 {key: _mean([r["steps"][i][key] for r in runs]) for key in runs[0]["steps"][i]}
                 for i in range(len(STEPS))

@@ -258,6 +258,9 @@ class ContinualConfig:
     for the carried day, so its frame is fitted freely on the day's points, the tool alone
     held (:class:`learner.carry.FramePriors`): its ``T_W_0`` is the nominal model's fit to its
     first points, and held near that UR10 B's model was 1.73 mm off A after A's first 10.
+    ``reference_program``: the carried day's first ``init`` points are a reference program
+    spread over the workspace (``robocal data reference-poses``), so the base's geometry is
+    fitted again on them too (:func:`learner.carry_base.carried_base`).
     ``aci_rate`` is the step of the adaptive conformal interval scale per new point outside
     (or inside) the ``aci_level`` interval, in log units (0 turns it off; it never narrows
     the intervals below the held-out calibration, :mod:`learner.conformal`).
@@ -290,6 +293,7 @@ class ContinualConfig:
     moved_frame_prior_mm: float = MOVED_FRAME_PRIOR_MM
     day_frame_points: int = DAY_FRAME_POINTS
     new_setup: bool = False
+    reference_program: bool = False
     refresh_growth: float = 0.0
     day_refresh_growth: float = 2.0
     seed: int = 0
@@ -339,10 +343,11 @@ class ContinualConfig:
             0.0 <= self.aci_rate <= 1.0,
             f"continual.aci_rate must be in [0, 1], got {self.aci_rate}",
         )
-        _check(
-            isinstance(self.new_setup, bool),
-            f"continual.new_setup must be true or false, got {self.new_setup!r}",
-        )
+        for name in ("new_setup", "reference_program"):
+            value = getattr(self, name)
+            _check(
+                isinstance(value, bool), f"continual.{name} must be true or false, got {value!r}"
+            )
         _check(
             0.0 < self.aci_level < 1.0,
             f"continual.aci_level must be in (0, 1), got {self.aci_level}",

@@ -47,6 +47,7 @@ from learner.carry import (
     scale_needed,
     unverified,
 )
+from learner.carry_base import carried_base
 from learner.config import ContinualConfig
 from learner.conformal import adapt_log_scale, take_up
 from learner.continual_base import REFINED, doubled, due, memory_base, refined_base, status
@@ -258,8 +259,8 @@ class ContinualLearner:
 
     def carry(self, X: np.ndarray, Y: np.ndarray) -> float:
         """Start a new day or cell from its first points ``X, Y``: re-identify the base's frames
-        (:func:`learner.carry.carried_frames`), empty the held-out set (another day's) and fit the
-        carried network's gain on these points (:meth:`ErrorModel.weigh_residual`); returns it.
+        (:func:`learner.carry_base.carried_base`), empty the held-out set (another day's) and fit
+        the carried network's gain on these points (:meth:`ErrorModel.weigh_residual`); returns it.
         Gain and scale are re-fitted on the day's held-out points once :data:`MIN_DAY_POINTS`
         are there (its mark kept until they are spread: :func:`~learner.carry.hold_day`). Until
         then the scale is the model's times its ``drift_scale`` (not again on a young day), or,
@@ -271,8 +272,9 @@ class ContinualLearner:
         young = self.day_scale is not None and len(self._cal_x) < MIN_DAY_POINTS
         drift = np.ones_like(self.model.drift_scale) if young else self.model.drift_scale
         spec, residual, priors = self.model.spec, self.model.residual(X), FramePriors.of(self.cfg)
-        old, (base, moved) = self.base, carried_frames(self.base, spec, X, Y, residual, priors)
-        self.day = CarriedDay.start(old, len(X), spec.n_features, self.n_seen)
+        old, (base, moved) = self.base, carried_base(self.base, spec, X, Y, residual, self.cfg)
+        source = base if self.cfg.reference_program else old  # what the day's refits centre on
+        self.day = CarriedDay.start(source, len(X), spec.n_features, self.n_seen)
         self.rebase(base)
         self._cal_x, self._cal_y = self._cal_x[:0], self._cal_y[:0]
         self.trained.residual_gain = self.model.weigh_residual(X, Y)

@@ -1,7 +1,8 @@
-"""CLI commands on datasets: ``import ipa`` and ``data summary``.
+"""CLI commands on datasets: ``import ipa``, ``data summary`` and ``data reference-poses``.
 
 robocal import ipa ../shared/data/ur10-ipa/Series_B --out ur10_b.parquet
 robocal data summary ur10_b.parquet --hist errors.png --json
+robocal data reference-poses program.csv --n 100 --out first_poses.csv
 """
 
 from __future__ import annotations
@@ -9,8 +10,14 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
 
 from stream.cli._base import Command, add_json_flag, emit
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 
 class ImportIpa(Command):
@@ -106,4 +113,65 @@ class DataSummary(Command):
         return 0
 
 
-COMMANDS: tuple[type[Command], ...] = (ImportIpa, DataSummary)
+class ReferencePoses(Command):
+    name = "data reference-poses"
+    help = "which of a program's poses a new set-up should measure first (spread, in order)"
+    uses_torch = False
+
+    def add_arguments(self, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument(
+            "file", help="the program's poses: .parquet or .csv with joint angles q1..qn (rad)"
+        )
+        parser.add_argument("--n", type=int, default=100, help="how many poses (default 100)")
+        parser.add_argument(
+            "--first", type=int, default=0, help="the row the robot starts at (default 0)"
+        )
+        parser.add_argument("--out", required=True, help="CSV to write: row, q1..qn in order")
+        add_json_flag(parser)
+
+    def take_action(self, args: argparse.Namespace) -> int:
+        import pandas as pd
+
+        from kinematics.reference import reference_order
+
+        q = joint_angles(Path(args.file))
+        order = reference_order(q.to_numpy(float), args.n, args.first)
+        poses = pd.concat(
+            [pd.Series(order, name="row"), q.iloc[order].reset_index(drop=True)], axis=1
+        )
+        poses.to_csv(args.out, index=False)
+        spans = np.rad2deg(np.ptp(q.to_numpy(float)[order], axis=0))
+        result = {"out": args.out, "n": len(order), "rows": order.tolist(), "span_deg": spans}
+        text = (
+            f"{args.out}: {len(order)} of {len(q)} poses to measure first, in order; "
+            f"joint spans {', '.join(f'{s:.0f}' for s in spans)} deg"
+        )
+        emit(result, args.json, text)
+        return 0
+
+
+def joint_angles(path: Path) -> pd.DataFrame:
+    """The columns ``q1..qn`` (rad) of a ``.parquet`` or ``.csv`` file of poses; a one-line
+    :class:`DatasetError` where it has none or cannot be read."""
+    import pandas as pd
+
+    from kinematics.errors import DatasetError
+
+    if path.suffix not in (".parquet", ".csv"):
+        raise DatasetError(f"{path}: poses are read from .parquet or .csv, got {path.suffix!r}")
+    try:
+        table = pd.read_parquet(path) if path.suffix == ".parquet" else pd.read_csv(path)
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"{path}: cannot be read: {exc}") from None
+    n = 0
+    while f"q{n + 1}" in table.columns:
+        n += 1
+    if not n:
+        raise DatasetError(f"{path}: no joint angle columns q1..qn")
+    q = table[[f"q{i}" for i in range(1, n + 1)]]
+    if not np.isfinite(q.to_numpy(float)).all():
+        raise DatasetError(f"{path}: joint angles q1..q{n} must be finite numbers")
+    return q
+
+
+COMMANDS: tuple[type[Command], ...] = (ImportIpa, DataSummary, ReferencePoses)

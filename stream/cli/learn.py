@@ -155,6 +155,12 @@ class Continual(Command):
             help="with --from: the tracker was set up anew for this day (its frames from its "
             "first points, e.g. import ipa --frames-rows): fit its frame freely, hold the tool",
         )
+        parser.add_argument(
+            "--reference-program",
+            action="store_true",
+            help="with --from: the first --init points are a reference program spread over the "
+            "workspace (data reference-poses): fit the geometry on them too, not only the frames",
+        )
         add_base_argument(parser, ContinualConfig().base, STREAM_BASE_KINDS)
         add_json_flag(parser)
 
@@ -169,7 +175,12 @@ class Continual(Command):
 
         ds = read_dataset(args.data)
         options = {n: getattr(args, n) for n in _CONTINUAL_OPTIONS}
-        cfg = ContinualConfig(**options, new_setup=args.new_setup, seed=args.seed)
+        cfg = ContinualConfig(
+            **options,
+            new_setup=args.new_setup,
+            reference_program=args.reference_program,
+            seed=args.seed,
+        )
         start = None if args.start is None else load_learner(args.start, cfg)
         n_updates = 1 + -(
             -max(0, round(len(ds) * (1 - args.test_fraction)) - cfg.init) // cfg.batch

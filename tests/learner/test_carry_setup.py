@@ -1,5 +1,8 @@
 """A model carried onto a tracker set up anew (``ContinualConfig.new_setup``): the day's own
-estimate of its tracker frame, a nominal fit to its first points, does not hold the carry."""
+estimate of its tracker frame, a nominal fit to its first points, does not hold the carry; and a
+day that starts with a reference program (``reference_program``) fits the arm's geometry too."""
+
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -7,6 +10,7 @@ import pytest
 from kinematics.errors import ConfigError
 from kinematics.frames import fit_frames
 from kinematics.model import RobotModel
+from kinematics.reference import reference_order
 from kinematics.transforms import apply_error, invert, pose_error, transform_from_xyz_rpy
 from learner.base import identify_base
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
@@ -67,3 +71,61 @@ def test_a_new_setup_fits_its_tracker_frame_whatever_the_days_estimate_of_it(day
 def test_new_setup_must_be_a_boolean():
     with pytest.raises(ConfigError, match="continual.new_setup must be true or false, got 'yes'"):
         ContinualConfig(new_setup="yes")
+
+
+@pytest.fixture(scope="module")
+def longer_arm(day):
+    """The same day's tracker poses with the arm's second link 1.5 mm longer than the model's
+    base says (the arm changed since, not only its tracker)."""
+    p, model, T_nominal, tracker, _, frames = day
+    desc = model.base.description
+    joints = list(desc.joints)
+    joints[1] = replace(joints[1], a_m=joints[1].a_m + 1.5e-3)
+    longer = RobotModel(replace(desc, joints=tuple(joints))).fk(p.X[:, :6])
+    moved = tracker.copy()
+    shift = longer[:, :3, 3] - RobotModel(desc).fk(p.X[:, :6])[:, :3, 3]
+    moved[:, :3, 3] += shift @ frames["true"][:3, :3].T
+    return moved
+
+
+def carry_onto(day, tracker, rows, reference_program):
+    """A new-set-up carry on ``rows`` of the day (labels in its true frame): the base's
+    tracker-frame positions (m) at every point, and its note."""
+    p, model, T_nominal, _, _, frames = day
+    W = frames["true"]
+    Y = pose_error(invert(W)[None] @ tracker, T_nominal)
+    cfg = ContinualConfig(new_setup=True, reference_program=reference_program)
+    learner = ContinualLearner(snapshot_from_bytes(snapshot_to_bytes(model)), cfg)
+    learner.carry(p.X[rows], Y[rows])
+    return (W[None] @ learner.base.poses(p.spec, p.X))[:, :3, 3], learner.base.note
+
+
+def test_a_reference_program_fits_the_days_geometry_where_its_points_identify_it(day, longer_arm):
+    """Carried on 60 reference poses, the base follows the longer link to within a third of
+    what the frames alone leave of it, on the day's other points."""
+    p, tracker = day[0], day[3]
+    program = reference_order(p.X[:, :6], 60)
+    rest = np.setdiff1d(np.arange(len(p.X)), program)
+    change = (longer_arm - tracker)[rest, :3, 3]
+    left = {}
+    for reference in (True, False):
+        longer, note = carry_onto(day, longer_arm, program, reference_program=reference)
+        before, _ = carry_onto(day, tracker, program, reference_program=reference)
+        left[reference] = np.linalg.norm(longer[rest] - before[rest] - change, axis=1).mean()
+        if reference:
+            assert "reference program: geometry fitted again on its 60 points" in note
+    assert np.linalg.norm(change, axis=1).mean() > 1e-3
+    assert left[True] < left[False] / 3
+
+
+def test_a_reference_program_too_short_for_the_geometry_keeps_it_and_says_so(day, longer_arm):
+    first = day[4][:8]
+    kept, note = carry_onto(day, longer_arm, first, reference_program=True)
+    framed, _ = carry_onto(day, longer_arm, first, reference_program=False)
+    assert "reference program: geometry kept, calibration needs at least" in note
+    np.testing.assert_array_equal(kept, framed)
+
+
+def test_reference_program_must_be_a_boolean():
+    with pytest.raises(ConfigError, match="continual.reference_program must be true or false"):
+        ContinualConfig(reference_program=1)

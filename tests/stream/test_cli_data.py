@@ -1,4 +1,5 @@
-"""``robocal import ipa`` and ``robocal data summary``, run in-process through ``main``."""
+"""``robocal import ipa``, ``robocal data summary`` and ``robocal data reference-poses``, run
+in-process through ``main``."""
 
 import json
 import re
@@ -14,6 +15,7 @@ from kinematics.model import RobotModel
 from kinematics.transforms import xyz_quat_from_transform
 from stream.cli import main
 
+Q = [f"q{i}" for i in range(1, 7)]
 KEYS = {"n", "mean_mm", "std_mm", "max_mm", "p95_mm", "mean_arcmin", "max_arcmin"}
 
 
@@ -114,3 +116,30 @@ def test_import_a_new_days_frames_from_its_first_rows(shared_data, tmp_path, cap
     assert json.loads(capsys.readouterr().out)["mean_mm"] > every.meta.extra["frame_fit"]["mean_mm"]
     assert main([*args[:-3], "--frames-rows", "2"]) == 2
     assert "frames_rows must be in [3, 1495] rows, got 2" in capsys.readouterr().err
+
+
+def test_reference_poses_writes_the_programs_rows_in_order(dataset_csv, tmp_path, capsys):
+    out = tmp_path / "first.csv"
+    args = ["data", "reference-poses", str(dataset_csv), "--n", "10", "--out", str(out)]
+    assert main([*args, "--first", "3", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    poses, program = pd.read_csv(out), pd.read_csv(dataset_csv)
+    assert result["rows"] == poses["row"].tolist() and poses["row"].iloc[0] == 3
+    assert len(set(result["rows"])) == 10 and list(poses.columns) == ["row", *Q]
+    np.testing.assert_array_equal(poses[Q].to_numpy(), program[Q].to_numpy()[poses["row"]])
+
+
+@pytest.mark.parametrize(
+    ("table", "n", "says"),
+    [
+        (pd.DataFrame({"a": [1.0, 2.0]}), "1", "no joint angle columns q1..qn"),
+        (pd.DataFrame({"q1": [1.0, np.nan]}), "1", "must be finite numbers"),
+        (pd.DataFrame({"q1": [1.0, 2.0]}), "3", "k must be in [1, 2] poses, got 3"),
+    ],
+)
+def test_reference_poses_refuse_a_bad_program_in_one_line(tmp_path, capsys, table, n, says):
+    table.to_csv(tmp_path / "p.csv", index=False)
+    args = ["data", "reference-poses", str(tmp_path / "p.csv"), "--n", n]
+    assert main([*args, "--out", str(tmp_path / "o.csv")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and says in err[0] and not (tmp_path / "o.csv").exists()
