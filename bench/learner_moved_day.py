@@ -117,7 +117,8 @@ def new_setup_day(day2: Path, init: int, reference: bool = False) -> Path:
     train = np.sort(prepare(seen, test_fraction=0.1, seed=0).train)
     if reference:
         early = train[:REFERENCE_WINDOW]
-        first = early[reference_order(seen.q()[early], REFERENCE_POSES)]
+        desc = nominal_description(seen)
+        first = early[reference_order(desc, seen.q()[early], REFERENCE_POSES)]
         rows = np.arange(len(t))
         rows[train] = np.concatenate([first, np.setdiff1d(train, first)])
         seen = Dataset(t.iloc[rows].reset_index(drop=True), seen.meta)

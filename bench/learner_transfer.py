@@ -149,7 +149,8 @@ def stream_order(run: Carry, target: Dataset, train: np.ndarray) -> np.ndarray:
         return np.random.default_rng(run.seed).permutation(train)
     if run.order == "reference":
         early = recorded[: run.window]
-        first = early[reference_order(target.q()[early], min(max(STEPS), len(early)))]
+        k = min(max(STEPS), len(early))
+        first = early[reference_order(nominal_description(target), target.q()[early], k)]
         return np.concatenate([first, np.setdiff1d(recorded, first)])
     return recorded
 

@@ -2,42 +2,82 @@
 
 A day whose tracker was set up anew knows its frames only from its first points. A program's first
 poses often lie in one region (UR10 Series A's first 100 span 40-130 deg per joint, condition number
-3.2e3), and the robot's local error there tilts any frames fitted on them: a model carried from
-Series B onto a new set-up was 0.659 mm off A after A's first 100 points, 0.487 mm after 100 poses
-chosen here among A's first 1,000 (BENCHMARKS.md, "A new set-up that starts with a reference
-program"). Greedy farthest-point order in joint space: each pose is the one farthest from those
-before it, so every prefix of the order is spread too, and a line that stops early still has spread
-poses. A D-optimal choice on the frames' and geometry's Jacobian gave the same (0.466 against 0.467
-mm on A, base alone), for far more work.
+3.2e3), and the robot's local error there tilts any frames fitted on them. The poses are chosen
+instead the way calibration poses are (D-optimal design): greedily, each the pose whose measured
+position adds most to the log-determinant of the information on the geometry and frames that
+calibration identifies, so every prefix of the order is informative too. A model carried onto a new
+set-up of UR10 Series A after 100 of them, chosen among A's first 1,000 points, with the geometry
+fitted again on them: 0.441 mm off A against 0.659 mm after A's first 100 (B onto A; A onto B 0.446
+against 0.599 mm). Greedy farthest-point order in joint space, which needs no robot, gave 0.440 /
+0.465 mm (BENCHMARKS.md, "A new set-up that starts with a reference program").
 
 >>> import numpy as np
->>> q = np.array([[0.0, 0.0], [0.1, 0.0], [1.0, 1.0], [0.0, 1.0], [1.0, 0.0]])
->>> reference_order(q, 3).tolist()
-[0, 2, 3]
+>>> from kinematics.description import load_description
+>>> ur10 = load_description("ur10")
+>>> q = np.random.default_rng(0).uniform(-3.0, 3.0, (200, 6))
+>>> order = reference_order(ur10, q, 40)
+>>> int(order[0]), len(set(order.tolist()))
+(0, 40)
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from kinematics.calibration import CalibrationConfig, GeometricFrames, identifiable
+from kinematics.description import RobotDescription
+from kinematics.effects import Conditions
 from kinematics.errors import ConfigError
+from kinematics.identification.conditions import Observations
+from kinematics.identification.fitting import jacobian
+from kinematics.model import RobotModel
+
+#: Added to the information matrix (unit-norm parameter columns over the candidates) so that
+#: the first poses, which cannot yet determine every parameter, still rank by what they add.
+RIDGE = 1e-6
 
 
-def reference_order(q: np.ndarray, k: int, first: int = 0) -> np.ndarray:
-    """Indices of ``k`` rows of ``q`` (N, n joints; rad) in the order to measure them: from
-    row ``first`` (where the robot stands), each next the pose farthest in joint space (rad,
-    Euclidean) from all before it. Deterministic; ties go to the earliest row."""
+def reference_order(desc: RobotDescription, q: np.ndarray, k: int, first: int = 0) -> np.ndarray:
+    """Indices of ``k`` rows of ``q`` (N candidate poses of ``desc``, joint angles in rad) in
+    the order to measure them: from row ``first`` (where the robot stands), each next the pose
+    whose measured position (three rows of the calibration Jacobian at the nominal) adds most
+    to the log-determinant of the information on the identifiable geometry and frames.
+    Deterministic; ties go to the earliest row."""
     q = np.asarray(q, dtype=float)
-    if q.ndim != 2 or not len(q):
-        raise ConfigError(f"reference poses: need joint angles (N, n joints), got shape {q.shape}")
+    if q.ndim != 2 or q.shape[1] != desc.n_joints or not len(q):
+        raise ConfigError(
+            f"reference poses: need joint angles (N, {desc.n_joints}) for {desc.name}, "
+            f"got shape {q.shape}"
+        )
     if not 1 <= k <= len(q):
         raise ConfigError(f"reference poses: k must be in [1, {len(q)}] poses, got {k}")
     if not 0 <= first < len(q):
         raise ConfigError(f"reference poses: first must be a row in [0, {len(q)}), got {first}")
-    order = [first]
-    distance = np.linalg.norm(q - q[first], axis=1)
+    rows = position_rows(desc, q)
+    information = RIDGE * np.eye(rows.shape[2]) + rows[first].T @ rows[first]
+    order, taken = [first], np.zeros(len(q), dtype=bool)
+    taken[first] = True
     for _ in range(k - 1):
-        nxt = int(np.argmax(distance))
+        projected = rows @ np.linalg.inv(information)
+        gain = np.linalg.slogdet(np.eye(3) + projected @ rows.transpose(0, 2, 1))[1]
+        nxt = int(np.argmax(np.where(taken, -np.inf, gain)))
         order.append(nxt)
-        distance = np.minimum(distance, np.linalg.norm(q - q[nxt], axis=1))
+        taken[nxt] = True
+        information += rows[nxt].T @ rows[nxt]
     return np.asarray(order)
+
+
+def position_rows(desc: RobotDescription, q: np.ndarray) -> np.ndarray:
+    """``(N, 3, p)``: how each pose's position moves with the ``p`` geometry and frame
+    parameters calibration identifies from these poses, each parameter's column scaled to unit
+    norm over them (so metres and radians weigh alike)."""
+    model = RobotModel(desc)
+    obs = Observations(
+        cond=Conditions(q=q, t=np.zeros(len(q))), T_measured=model.fk(q), T_W_0=np.eye(4)
+    )
+    full = GeometricFrames(desc)
+    names = full.parameter_names(desc)
+    J = jacobian(model, obs, [(full, np.zeros(len(names)))], 1.0)
+    J = J[:, list(identifiable(J, names, CalibrationConfig().rank_rtol).kept_index)]
+    J = J / np.linalg.norm(J, axis=0)
+    return J.reshape(len(q), 6, -1)[:, :3]

@@ -2,7 +2,7 @@
 
 robocal import ipa ../shared/data/ur10-ipa/Series_B --out ur10_b.parquet
 robocal data summary ur10_b.parquet --hist errors.png --json
-robocal data reference-poses program.csv --n 100 --out first_poses.csv
+robocal data reference-poses program.csv --robot ur10 --n 100 --out first_poses.csv
 """
 
 from __future__ import annotations
@@ -122,6 +122,7 @@ class ReferencePoses(Command):
         parser.add_argument(
             "file", help="the program's poses: .parquet or .csv with joint angles q1..qn (rad)"
         )
+        parser.add_argument("--robot", required=True, help="robot description (name, TOML or URDF)")
         parser.add_argument("--n", type=int, default=100, help="how many poses (default 100)")
         parser.add_argument(
             "--first", type=int, default=0, help="the row the robot starts at (default 0)"
@@ -132,10 +133,11 @@ class ReferencePoses(Command):
     def take_action(self, args: argparse.Namespace) -> int:
         import pandas as pd
 
+        from kinematics.description import load_description
         from kinematics.reference import reference_order
 
         q = joint_angles(Path(args.file))
-        order = reference_order(q.to_numpy(float), args.n, args.first)
+        order = reference_order(load_description(args.robot), q.to_numpy(float), args.n, args.first)
         poses = pd.concat(
             [pd.Series(order, name="row"), q.iloc[order].reset_index(drop=True)], axis=1
         )

@@ -1,38 +1,61 @@
-"""Reference poses for a new set-up: farthest-point order in joint space."""
+"""Reference poses for a new set-up: greedy D-optimal order over a program's poses."""
 
 import numpy as np
 import pytest
 
+from kinematics.calibration import CalibrationConfig, identify
+from kinematics.description import load_description
+from kinematics.effects import Conditions
 from kinematics.errors import ConfigError
-from kinematics.reference import reference_order
+from kinematics.identification.conditions import Observations
+from kinematics.model import RobotModel
+from kinematics.reference import RIDGE, position_rows, reference_order
+
+UR10 = load_description("ur10")
 
 
-def test_each_pose_is_the_farthest_from_those_before_it():
-    q = np.random.default_rng(3).uniform(-3.0, 3.0, (400, 6))
-    order = reference_order(q, 30, first=7)
-    assert order[0] == 7 and len(set(order.tolist())) == 30
-    for i in range(1, 30):
-        gaps = np.linalg.norm(q[:, None] - q[order[:i]][None], axis=2).min(axis=1)
-        assert gaps[order[i]] == pytest.approx(gaps.max())
+def condition_number(q: np.ndarray) -> float:
+    """How well poses ``q`` identify the UR10's geometry and frames (calibration's measure)."""
+    model = RobotModel(UR10)
+    cond = Conditions(q=q, t=np.zeros(len(q)))
+    obs = Observations(cond=cond, T_measured=model.fk(q), T_W_0=np.eye(4))
+    return identify(model, obs, CalibrationConfig()).condition_number
 
 
-def test_every_prefix_is_the_order_for_fewer_poses():
-    q = np.random.default_rng(4).normal(size=(200, 7))
-    full = reference_order(q, 50)
-    for k in (1, 10, 25):
-        assert reference_order(q, k).tolist() == full[:k].tolist()
-
-
-def test_a_clustered_program_is_left_for_its_far_poses():
-    """A program that dwells 190 poses in one region and visits 10 others: the reference
-    program measures the 10 far poses before a second one of the region."""
+@pytest.fixture(scope="module")
+def program():
+    """A program that dwells in one region for its first 300 poses, then visits the rest."""
     rng = np.random.default_rng(5)
-    region = rng.normal(0.0, 0.05, (190, 6))
-    far = rng.uniform(-3.0, 3.0, (10, 6))
-    far[:, 0] += np.sign(far[:, 0]) * 1.0  # every far pose at least 1 rad out in joint 1
-    q = np.concatenate([region, far])
-    order = reference_order(q, 11)
-    assert order[0] == 0 and sorted(order[1:].tolist()) == list(range(190, 200))
+    region = rng.uniform(
+        [0.2, -1.6, 0.5, -2.0, 1.0, -0.5], [0.8, -1.0, 1.2, -1.4, 1.6, 0.5], (300, 6)
+    )
+    rest = rng.uniform(-np.pi, np.pi, (300, 6))
+    return np.concatenate([region, rest])
+
+
+def test_a_programs_reference_poses_identify_what_its_first_poses_cannot(program):
+    order = reference_order(UR10, program, 60)
+    assert order[0] == 0 and len(set(order.tolist())) == 60
+    assert condition_number(program[order]) < condition_number(program[:60]) / 10
+
+
+def test_each_pose_adds_most_to_the_information_of_those_before_it(program):
+    order = reference_order(UR10, program, 12, first=7)
+    rows = position_rows(UR10, program)
+    information = RIDGE * np.eye(rows.shape[2])
+    for i, row in enumerate(order):
+        if i:
+            gains = [np.linalg.slogdet(information + r.T @ r)[1] for r in rows]
+            gains = np.where(np.isin(np.arange(len(rows)), order[:i]), -np.inf, gains)
+            assert gains[row] == pytest.approx(np.max(gains), abs=1e-9)
+        information += rows[row].T @ rows[row]
+    assert order[0] == 7
+
+
+def test_every_prefix_is_the_order_for_fewer_poses(program):
+    full = reference_order(UR10, program, 30)
+    for k in (1, 10, 20):
+        assert reference_order(UR10, program, k).tolist() == full[:k].tolist()
 
 
 @pytest.mark.parametrize(
@@ -40,11 +63,11 @@ def test_a_clustered_program_is_left_for_its_far_poses():
     [
         (np.zeros((5, 6)), 6, 0, "k must be in [1, 5]"),
         (np.zeros((5, 6)), 0, 0, "k must be in [1, 5]"),
-        (np.zeros(6), 1, 0, "shape (6,)"),
+        (np.zeros((5, 7)), 1, 0, "need joint angles (N, 6) for ur10, got shape (5, 7)"),
         (np.zeros((5, 6)), 2, 5, "first must be a row in [0, 5)"),
     ],
 )
 def test_bad_requests_say_what_was_wrong(q, k, first, says):
     with pytest.raises(ConfigError, match=r"reference poses: .*") as info:
-        reference_order(q, k, first)
+        reference_order(UR10, q, k, first)
     assert says in str(info.value) and "\n" not in str(info.value)

@@ -104,7 +104,7 @@ def test_a_reference_program_fits_the_days_geometry_where_its_points_identify_it
     """Carried on 60 reference poses, the base follows the longer link to within a third of
     what the frames alone leave of it, on the day's other points."""
     p, tracker = day[0], day[3]
-    program = reference_order(p.X[:, :6], 60)
+    program = reference_order(p.spec.description, p.X[:, :6], 60)
     rest = np.setdiff1d(np.arange(len(p.X)), program)
     change = (longer_arm - tracker)[rest, :3, 3]
     left = {}

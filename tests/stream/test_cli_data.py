@@ -120,7 +120,8 @@ def test_import_a_new_days_frames_from_its_first_rows(shared_data, tmp_path, cap
 
 def test_reference_poses_writes_the_programs_rows_in_order(dataset_csv, tmp_path, capsys):
     out = tmp_path / "first.csv"
-    args = ["data", "reference-poses", str(dataset_csv), "--n", "10", "--out", str(out)]
+    args = ["data", "reference-poses", str(dataset_csv), "--robot", "ur10", "--n", "10"]
+    args += ["--out", str(out)]
     assert main([*args, "--first", "3", "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
     poses, program = pd.read_csv(out), pd.read_csv(dataset_csv)
@@ -134,12 +135,13 @@ def test_reference_poses_writes_the_programs_rows_in_order(dataset_csv, tmp_path
     [
         (pd.DataFrame({"a": [1.0, 2.0]}), "1", "no joint angle columns q1..qn"),
         (pd.DataFrame({"q1": [1.0, np.nan]}), "1", "must be finite numbers"),
-        (pd.DataFrame({"q1": [1.0, 2.0]}), "3", "k must be in [1, 2] poses, got 3"),
+        (pd.DataFrame({f"q{i}": [1.0, 2.0] for i in range(1, 7)}), "3", "k must be in [1, 2]"),
+        (pd.DataFrame({"q1": [1.0, 2.0]}), "1", "need joint angles (N, 6) for ur10"),
     ],
 )
 def test_reference_poses_refuse_a_bad_program_in_one_line(tmp_path, capsys, table, n, says):
     table.to_csv(tmp_path / "p.csv", index=False)
-    args = ["data", "reference-poses", str(tmp_path / "p.csv"), "--n", n]
+    args = ["data", "reference-poses", str(tmp_path / "p.csv"), "--robot", "ur10", "--n", n]
     assert main([*args, "--out", str(tmp_path / "o.csv")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and says in err[0] and not (tmp_path / "o.csv").exists()
