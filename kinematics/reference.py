@@ -6,10 +6,10 @@ poses often lie in one region (UR10 Series A's first 100 span 40-130 deg per joi
 instead the way calibration poses are (D-optimal design): greedily, each the pose whose measured
 position adds most to the log-determinant of the information on the geometry and frames that
 calibration identifies, so every prefix of the order is informative too. A model carried onto a new
-set-up of UR10 Series A after 100 of them, chosen among A's first 1,000 points, with the geometry
-fitted again on them: 0.441 mm off A against 0.659 mm after A's first 100 (B onto A; A onto B 0.446
-against 0.599 mm). Greedy farthest-point order in joint space, which needs no robot, gave 0.440 /
-0.465 mm (BENCHMARKS.md, "A new set-up that starts with a reference program").
+set-up after 100 of them, chosen among the new series' first 1,000 points, with the geometry fitted
+again on them: UR10 B onto A 0.440 mm off A's test points, A onto B 0.448 mm, against 0.659 / 0.599
+mm after the series' first 100. Greedy farthest-point order in joint space, which needs no robot,
+gave 0.440 / 0.465 mm (BENCHMARKS.md, "A new set-up that starts with a reference program").
 
 >>> import numpy as np
 >>> from kinematics.description import load_description

@@ -4,7 +4,7 @@ says those points are a reference program spread over the workspace, its geometr
 A reference program (``robocal data reference-poses``) identifies the whole geometry, so the day's
 own geometry is fitted under calibration's prior about the carried one, beside the frames: the arm
 changes from day to day, not only its tracker. UR10, a tracker set up anew, after 100 reference
-poses from the new series' first 1,000 training points: B→A 0.487 -> 0.440 mm, A→B 0.554 -> 0.465 mm
+poses from the new series' first 1,000 training points: B→A 0.538 -> 0.440 mm, A→B 0.539 -> 0.448 mm
 (BENCHMARKS.md, "A new set-up that starts with a reference program"). On a day's first points in
 recorded order the same fit folds their region's error into the geometry (A→B 0.599 -> 0.644 mm): it
 is a statement the line makes, never inferred, and it needs points that identify the geometry
