@@ -22,7 +22,14 @@ from learner.config import (
     ContinualConfig,
     TrainConfig,
 )
-from stream.cli._base import Command, add_base_argument, add_data_argument, add_json_flag, emit
+from stream.cli._base import (
+    CLIUsageError,
+    Command,
+    add_base_argument,
+    add_data_argument,
+    add_json_flag,
+    emit,
+)
 
 if TYPE_CHECKING:
     from learner.workflow import ContinualResult, TrainResult
@@ -173,6 +180,9 @@ class Continual(Command):
         from learner.workflow import continual_on_dataset
         from stream.reports.learner import write_continual
 
+        if args.start is None and (args.new_setup or args.reference_program):
+            flag = "--new-setup" if args.new_setup else "--reference-program"
+            raise CLIUsageError(f"{flag} describes a day carried from a model: give --from MODEL")
         ds = read_dataset(args.data)
         options = {n: getattr(args, n) for n in _CONTINUAL_OPTIONS}
         cfg = ContinualConfig(

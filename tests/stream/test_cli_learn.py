@@ -229,6 +229,17 @@ def test_bad_input_exits_2(tmp_path, capsys):
     assert "robocal: error:" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("flag", ["--new-setup", "--reference-program"])
+def test_a_new_days_statement_without_a_model_to_carry_stops_in_one_line(
+    data_file, tmp_path, flag, capsys
+):
+    argv = ["continual", "--data", str(data_file), "--out", str(tmp_path / "m.safetensors")]
+    assert main([*argv, flag]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{flag} describes a day carried from a model" in err[0]
+    assert not (tmp_path / "m.safetensors").exists()
+
+
 def test_continual_goes_on_from_a_model_with_its_memory(data_file, tmp_path, capsys):
     first, second = tmp_path / "day1.safetensors", tmp_path / "day2.safetensors"
     argv = ["train", "--data", str(data_file), "--out", str(first), "--max-epochs", "3"]
