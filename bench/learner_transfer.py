@@ -35,13 +35,13 @@ rest, both ways: another day of the same cell, the tracker not set up anew, so t
 in the frames the model's own day gave (each day's fitted on its own points).
 
 ``--whole-day N`` streams the new series' first ``N`` training points after the carry instead (in
-recorded order): the carry on its first ``init`` points (``ContinualConfig``), then one update per
-``batch`` of them from the first, as ``robocal continual --from`` does. After each update: the test
-mean, the 90 % coverage, the untrusted share and the coverage of the trusted answers; the coverage
-of the update's own batch, scored before it was learned (prequential), with the share of it
-compensation would have trusted then and their coverage (what a line asking then got); and the
-coverage of the test points the stream has already passed in recorded order and of those still ahead
-of it.
+``--order``; ``--init``, the carry's points): the carry on its first ``init`` points
+(``ContinualConfig``), then one update per ``batch`` of them from the first, as ``robocal continual
+--from`` does. After each update: the test mean, the 90 % coverage, the untrusted share and the
+coverage of the trusted answers; the coverage of the update's own batch, scored before it was
+learned (prequential), with the share of it compensation would have trusted then and their coverage
+(what a line asking then got); and the coverage of the test points the stream has already passed in
+recorded order and of those still ahead of it.
 
 
     .venv/bin/python bench/learner_transfer.py --a /tmp/a.parquet --b /tmp/b.parquet --seeds 0 1 2
@@ -215,18 +215,19 @@ def transfer(run: Carry) -> dict:
 
 
 def whole_day(run: Carry, n: int) -> list[dict]:
-    """One carry (:class:`Carry`, its points as recorded) streamed through the new series'
-    first ``n`` training points (``--whole-day``; data frames ``carry``: the carry's ``init``
-    points): one row per update."""
+    """One carry (:class:`Carry`) streamed through the new series' first ``n`` training points
+    in its order (:func:`stream_order`; ``--whole-day``; data frames ``carry``: the carry's
+    ``init`` points): one row per update."""
     model_path, _, _ = source_model(run)
     cfg = ContinualConfig(seed=run.seed, **run.priors)
     learner = load_learner(model_path, cfg)
     ds = read_dataset(run.target)
     p = prepare(ds, test_fraction=0.1, seed=0, spec=learner.model.spec)
+    order = stream_order(run, ds, p.train)
     if run.target_frames != "series":
-        ds = in_frames(run.target_frames, run.source, ds, np.sort(p.train)[: cfg.init])
+        ds = in_frames(run.target_frames, run.source, ds, order[: cfg.init])
         p = prepare(ds, test_fraction=0.1, seed=0, spec=learner.model.spec)
-    stream, test = np.sort(p.train)[:n], np.sort(p.test)
+    stream, test = order[:n], np.sort(p.test)
     X, Y, Xte, Yte = p.X[stream], p.Y[stream], p.X[test], p.Y[test]
 
     def covered(m: np.ndarray) -> float:
@@ -318,6 +319,7 @@ def main() -> None:
     ap.add_argument("--days", help="one series: carry its first day to the rest and back")
     ap.add_argument("--gap-h", type=float, default=4.0, help="--days: the pause that ends a day")
     ap.add_argument("--whole-day", type=int, help="stream this many of the new series' points")
+    ap.add_argument("--init", type=int, help="--whole-day: the carry's points (ContinualConfig)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     out = {}
@@ -330,6 +332,8 @@ def main() -> None:
             "new_setup": args.new_setup and not args.days,
             "reference_program": args.reference_program,
         }
+        if args.init:
+            priors["init"] = args.init
         a, b = split_days(args.days, folder, args.gap_h) if args.days else (args.a, args.b)
         directions = {"A->B": (a, b, args.base_a), "B->A": (b, a, args.base_b)}
         # --days: one tracker set-up, so a day goes on in the frames the other one had
