@@ -115,7 +115,7 @@ class DataSummary(Command):
 
 class ReferencePoses(Command):
     name = "data reference-poses"
-    help = "which of a program's poses a new set-up should measure first (spread, in order)"
+    help = "which of a program's poses a new set-up should measure first (D-optimal, in order)"
     uses_torch = False
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
