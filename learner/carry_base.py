@@ -59,9 +59,9 @@ def residual_gain(
     base: PhysicsBase, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray, residual: np.ndarray
 ) -> float:
     """The share in [0, 1] of the carried network's ``residual`` (N, 6) that explains what
-    ``base`` leaves of the positions in ``Y`` (least squares, m): as
-    :meth:`~learner.model.ErrorModel.weigh_residual` will weigh it on the new day, whose
-    network learned its residual on another (UR10: 0-0.4)."""
+    ``base`` leaves of the positions in ``Y`` (least squares, m): what
+    :meth:`~learner.model.ErrorModel.weigh_residual` fits once the model stands on ``base``,
+    needed here before it does, since the network learned its residual on another day."""
     left = (
         np.asarray(Y, dtype=float)[:, :3] - base.error(spec, X, RobotModel(spec.description))[:, :3]
     )
