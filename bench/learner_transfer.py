@@ -91,8 +91,8 @@ REFERENCE_WINDOW = 1000
 class Carry:
     """One carry the bench measures: ``source``'s model (trained on ``base`` for ``epochs``
     with ``seed``, cached in ``folder``) carried to ``target`` under the continual settings
-    ``priors``, on the new series' points in ``order`` (:func:`stream_order`), in the data
-    frames ``target_frames`` names (:func:`in_frames`)."""
+    ``continual`` (its seed the run's), on the new series' points in ``order``
+    (:func:`stream_order`), in the data frames ``target_frames`` names (:func:`in_frames`)."""
 
     source: str
     target: str
@@ -100,7 +100,7 @@ class Carry:
     epochs: int
     folder: Path
     base: str
-    priors: dict
+    continual: ContinualConfig
     target_frames: str = "carry"
     order: str = "recorded"
     window: int = REFERENCE_WINDOW
@@ -158,7 +158,7 @@ def stream_order(run: Carry, target: Dataset, train: np.ndarray) -> np.ndarray:
 def transfer(run: Carry) -> dict:
     """One carry (:class:`Carry`), measured after k = :data:`STEPS` of the new series' points."""
     model_path, model, source_mm = source_model(run)
-    cfg = ContinualConfig(seed=run.seed, **run.priors)
+    cfg = replace(run.continual, seed=run.seed)
     p_src = prepare(read_dataset(run.source), test_fraction=0.1, seed=run.seed, spec=model.spec)
     epi_src = np.sqrt(model.predict(p_src.X[p_src.test]).epistemic()[:, :3]).mean()
     target_ds = read_dataset(run.target)
@@ -219,7 +219,7 @@ def whole_day(run: Carry, n: int) -> list[dict]:
     in its order (:func:`stream_order`; ``--whole-day``; data frames ``carry``: the carry's
     ``init`` points): one row per update."""
     model_path, _, _ = source_model(run)
-    cfg = ContinualConfig(seed=run.seed, **run.priors)
+    cfg = replace(run.continual, seed=run.seed)
     learner = load_learner(model_path, cfg)
     ds = read_dataset(run.target)
     p = prepare(ds, test_fraction=0.1, seed=0, spec=learner.model.spec)
@@ -326,14 +326,13 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(args.cache or tmp)
         folder.mkdir(parents=True, exist_ok=True)
-        priors = {
-            "frame_prior_mm": args.frame_prior_mm,
-            "moved_frame_prior_mm": args.moved_frame_prior_mm,
-            "new_setup": args.new_setup and not args.days,
-            "reference_program": args.reference_program,
-        }
-        if args.init:
-            priors["init"] = args.init
+        continual = ContinualConfig(
+            frame_prior_mm=args.frame_prior_mm,
+            moved_frame_prior_mm=args.moved_frame_prior_mm,
+            new_setup=args.new_setup and not args.days,
+            reference_program=args.reference_program,
+            init=args.init or ContinualConfig().init,
+        )
         a, b = split_days(args.days, folder, args.gap_h) if args.days else (args.a, args.b)
         directions = {"A->B": (a, b, args.base_a), "B->A": (b, a, args.base_b)}
         # --days: one tracker set-up, so a day goes on in the frames the other one had
@@ -347,7 +346,7 @@ def main() -> None:
                     args.max_epochs,
                     folder,
                     base,
-                    priors,
+                    continual,
                     target_frames,
                     args.order,
                     args.window,

@@ -216,6 +216,14 @@ class CalibrationResult:
         }
 
 
+def rest_observations(model: RobotModel, q: np.ndarray) -> Observations:
+    """Poses ``q`` (N, n; rad) at rest (no load, no temperature, t = 0) as the nominal model
+    measures them in its base frame: what a Jacobian at the nominal needs before any point
+    is measured."""
+    cond = Conditions(q=q, t=np.zeros(len(q)))
+    return Observations(cond=cond, T_measured=model.fk(q), T_W_0=np.eye(4))
+
+
 def prior_std(model: RobotModel, effect: Effect, prior_mm: float) -> np.ndarray:
     """Per parameter of ``effect``, the standard deviation (its unit) of a Gaussian prior that
     holds it to what moves the tool by ``prior_mm`` RMS over the robot's joint limits at rest
@@ -229,9 +237,7 @@ def prior_std(model: RobotModel, effect: Effect, prior_mm: float) -> np.ndarray:
     desc = model.description
     lower, upper = desc.limits_rad.T
     q = np.random.default_rng(0).uniform(lower, upper, (_PRIOR_SAMPLES, desc.n_joints))
-    obs = Observations(
-        cond=Conditions(q=q, t=np.zeros(len(q))), T_measured=model.fk(q), T_W_0=np.eye(4)
-    )
+    obs = rest_observations(model, q)
     try:
         J = jacobian(model, obs, [(effect, np.zeros(n))], 1.0)
     except RobocalError:  # needs conditions that rest does not give (temperatures, approach)

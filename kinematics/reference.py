@@ -24,11 +24,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from kinematics.calibration import CalibrationConfig, GeometricFrames, identifiable
+from kinematics.calibration import (
+    CalibrationConfig,
+    GeometricFrames,
+    identifiable,
+    rest_observations,
+)
 from kinematics.description import RobotDescription
-from kinematics.effects import Conditions
 from kinematics.errors import ConfigError
-from kinematics.identification.conditions import Observations
 from kinematics.identification.fitting import jacobian
 from kinematics.model import RobotModel
 
@@ -72,9 +75,7 @@ def position_rows(desc: RobotDescription, q: np.ndarray) -> np.ndarray:
     parameters calibration identifies from these poses, each parameter's column scaled to unit
     norm over them (so metres and radians weigh alike)."""
     model = RobotModel(desc)
-    obs = Observations(
-        cond=Conditions(q=q, t=np.zeros(len(q))), T_measured=model.fk(q), T_W_0=np.eye(4)
-    )
+    obs = rest_observations(model, q)
     full = GeometricFrames(desc)
     names = full.parameter_names(desc)
     J = jacobian(model, obs, [(full, np.zeros(len(names)))], 1.0)

@@ -122,7 +122,8 @@ class LearnerStage(Stage):
         self.last_update: Update | None = None
         self.metrics: deque[Metrics] = deque(maxlen=10_000)
         self._lock = threading.Lock()
-        if self.checkpoint_path is not None and self.checkpoint_path.exists():
+        restored = self.checkpoint_path is not None and self.checkpoint_path.exists()
+        if restored:
             read_checkpoint(self.core, self.checkpoint_path)
             self.log.info(
                 "checkpoint_restored",
@@ -132,12 +133,11 @@ class LearnerStage(Stage):
                     e: {"last_seq": s, "next_point": f} for e, (s, f) in self.core.windows.items()
                 },
             )
-            metrics = self.core.metrics(float("nan"), 0.0, None)
-            self._publish(self.core.published(0.0, metrics, self.core.paused(time.time())))
             self._weight = {e: s + 1 for e, (s, _) in self.core.windows.items()}
-        elif self.core.learner is not None:  # a model file to go on from: none of the day seen
+        if self.core.learner is not None:  # restored, or a model file: none of the day seen
+            new_day = self.core.paused(time.time()) if restored else True
             metrics = self.core.metrics(float("nan"), 0.0, None)
-            self._publish(self.core.published(0.0, metrics, new_day=True))
+            self._publish(self.core.published(0.0, metrics, new_day))
         self.trainer = TrainProcess(self._train_failed) if cfg.train_process else None
         self.core.trainer = self.trainer
         self.answer("model", self._reply_latest)

@@ -3,11 +3,9 @@
 import numpy as np
 import pytest
 
-from kinematics.calibration import CalibrationConfig, identify
+from kinematics.calibration import CalibrationConfig, identify, rest_observations
 from kinematics.description import load_description
-from kinematics.effects import Conditions
 from kinematics.errors import ConfigError
-from kinematics.identification.conditions import Observations
 from kinematics.model import RobotModel
 from kinematics.reference import RIDGE, position_rows, reference_order
 
@@ -17,9 +15,7 @@ UR10 = load_description("ur10")
 def condition_number(q: np.ndarray) -> float:
     """How well poses ``q`` identify the UR10's geometry and frames (calibration's measure)."""
     model = RobotModel(UR10)
-    cond = Conditions(q=q, t=np.zeros(len(q)))
-    obs = Observations(cond=cond, T_measured=model.fk(q), T_W_0=np.eye(4))
-    return identify(model, obs, CalibrationConfig()).condition_number
+    return identify(model, rest_observations(model, q), CalibrationConfig()).condition_number
 
 
 @pytest.fixture(scope="module")
