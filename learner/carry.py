@@ -5,11 +5,11 @@ When a model goes on in another day or cell (``robocal continual --from``, the d
 (``T_0_B``, the tool) are fitted again to the first points, less what the network adds there
 (:func:`reidentify_frames`), held near the old ones unless the points show a move
 (:func:`carried_frames`); the carry calibrates its intervals on labels that frames fitted
-without each point's fold leave (:func:`held_out_labels`). Where the frames held, the day's
-first points still check the intervals the model came with (:func:`scale_needed`): another
-day of the same cell can miss them by far. A carry starts the day with its intervals as wide
-as its training days' own last hours showed a later day needs (:func:`drift_scale`). The
-fitted frames keep their posterior spread (:func:`frame_sigma_points`,
+without each point's fold leave (:func:`learner.carry_base.held_out_labels`). Where the frames
+held, the day's first points still check the intervals the model came with
+(:func:`scale_needed`): another day of the same cell can miss them by far. A carry starts the
+day with its intervals as wide as its training days' own last hours showed a later day needs
+(:func:`drift_scale`). The fitted frames keep their posterior spread (:func:`frame_sigma_points`,
 ``PhysicsBase.frame_sigma``): frames fixed by ten points of one corner are poorly known far
 from it, and the intervals there say so. As the day's points keep coming
 (:class:`CarriedDay`), its frames are fitted again on all of them.
@@ -273,40 +273,6 @@ def before_day(model: ErrorModel) -> ErrorModel:
     copy.interval_scale = model.interval_scale * model.drift_scale
     copy.unverified = model.unverified or BEFORE_DAY
     return copy
-
-
-def held_out_labels(
-    base: PhysicsBase,
-    spec: FeatureSpec,
-    X: np.ndarray,
-    Y: np.ndarray,
-    residual: np.ndarray,
-    priors: FramePriors,
-    fitted: PhysicsBase,
-    folds: int = 5,
-) -> np.ndarray:
-    """``Y`` moved so that ``fitted`` (frames re-identified on all of ``X, Y``) leaves at each
-    point what frames fitted without that point's fold leave: calibrating intervals on them
-    measures how far the frames miss points they were not fitted to, not how well they fit
-    their own (on 10 points the second is far smaller). Fewer than 2 points: ``Y`` as it is."""
-    out = np.array(Y, dtype=float)
-    if len(X) < 2:
-        return out
-    nominal = RobotModel(spec.description)
-    out += fitted.error(spec, X, nominal)
-    for fold in np.array_split(np.arange(len(X)), min(folds, len(X))):
-        rest = np.setdiff1d(np.arange(len(X)), fold)
-        without = reidentify_frames(
-            base,
-            spec,
-            X[rest],
-            Y[rest],
-            residual=residual[rest],
-            prior_m=priors.moved_m,
-            tracker_free=priors.tracker_free,
-        )
-        out[fold] -= without.error(spec, X[fold], nominal)
-    return out
 
 
 def spread(spec: FeatureSpec, X: np.ndarray, Y: np.ndarray) -> bool:

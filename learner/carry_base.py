@@ -8,21 +8,34 @@ poses from the new series' first 1,000 training points: B→A 0.538 -> 0.440 mm,
 (BENCHMARKS.md, "A new set-up that starts with a reference program"). On a day's first points in
 recorded order the same fit folds their region's error into the geometry (A→B 0.599 -> 0.644 mm): it
 is a statement the line makes, never inferred, and it needs points that identify the geometry
-(:data:`~learner.base.AUTO_MAX_CONDITION`).
+(:data:`~learner.base.AUTO_MAX_CONDITION`). Spread over the workspace, the program also checks
+the day's intervals: each pose as the base fitted without its fold misses it
+(:func:`checking_labels`).
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from kinematics.errors import IdentifiabilityError
 from kinematics.model import RobotModel
 from learner.base import AUTO_MAX_CONDITION, PhysicsBase, refit_base
-from learner.carry import FramePriors, carried_frames
+from learner.carry import FramePriors, carried_frames, reidentify_frames
 from learner.config import ContinualConfig
 from learner.features import FeatureSpec
+
+
+@dataclass(frozen=True)
+class DayBase:
+    """The base a carried day starts on (:func:`carried_base`): whether its frames ``moved``,
+    and whether a reference program fitted its geometry again (``refitted``)."""
+
+    base: PhysicsBase
+    moved: bool
+    refitted: bool = False
 
 
 def carried_base(
@@ -32,7 +45,7 @@ def carried_base(
     Y: np.ndarray,
     residual: np.ndarray,
     cfg: ContinualConfig,
-) -> tuple[PhysicsBase, bool]:
+) -> DayBase:
     """``base`` for a new day from its first points ``X, Y`` (``residual``: what the network
     adds there): its frames (:func:`learner.carry.carried_frames`, whether they moved) and,
     with ``cfg.reference_program``, its geometry and effects fitted again on the points
@@ -41,18 +54,93 @@ def carried_base(
     says which."""
     framed, moved = carried_frames(base, spec, X, Y, residual, FramePriors.of(cfg))
     if not cfg.reference_program:
-        return framed, moved
+        return DayBase(framed, moved)
     labels = np.asarray(Y, dtype=float) - residual_gain(framed, spec, X, Y, residual) * residual
     try:
         fitted = refit_base(framed, spec, X, labels, max_condition=AUTO_MAX_CONDITION)
     except IdentifiabilityError as exc:
         note = f"{framed.note}; reference program: geometry kept, {exc}"
-        return replace(framed, note=note), moved
+        return DayBase(replace(framed, note=note), moved)
     note = (
         f"{framed.note}; reference program: geometry fitted again on its {len(X)} points, "
         f"condition number {fitted.condition:.3g}"
     )
-    return replace(fitted, note=note, frame_sigma=None), moved
+    return DayBase(replace(fitted, note=note, frame_sigma=None), moved, refitted=True)
+
+
+def checking_labels(
+    start: DayBase,
+    base: PhysicsBase,
+    spec: FeatureSpec,
+    X: np.ndarray,
+    Y: np.ndarray,
+    residual: np.ndarray,
+    cfg: ContinualConfig,
+) -> np.ndarray | None:
+    """The labels on which a day carried from ``base`` to ``start`` checks its intervals, each
+    of its first points ``X, Y`` as the same fit without its fold leaves it
+    (:func:`learner.carry.held_out_labels`): a reference program's whole
+    :func:`carried_base` where it fitted the geometry (spread over the workspace, its folds
+    check the intervals everywhere), else a move's frames; None where the frames held."""
+    if start.refitted:
+
+        def fit_on(rows: np.ndarray) -> PhysicsBase:
+            return carried_base(base, spec, X[rows], Y[rows], residual[rows], cfg).base
+
+    elif start.moved:
+        fit_on = moved_frames_on(base, spec, X, Y, residual, FramePriors.of(cfg))
+    else:
+        return None
+    return held_out_labels(start.base, spec, X, Y, fit_on)
+
+
+def held_out_labels(
+    fitted: PhysicsBase,
+    spec: FeatureSpec,
+    X: np.ndarray,
+    Y: np.ndarray,
+    fit_on: Callable[[np.ndarray], PhysicsBase],
+    folds: int = 5,
+) -> np.ndarray:
+    """``Y`` moved so that ``fitted`` (a base fitted on all of ``X, Y``) leaves at each point
+    what ``fit_on(rows)``, the same fit on the other folds' rows, leaves: calibrating
+    intervals on them measures how far the fit misses points it was not fitted to, not how
+    well it fits its own (on 10 points the second is far smaller). Fewer than 2 points: ``Y``
+    as it is."""
+    out = np.array(Y, dtype=float)
+    if len(X) < 2:
+        return out
+    nominal = RobotModel(spec.description)
+    out += fitted.error(spec, X, nominal)
+    for fold in np.array_split(np.arange(len(X)), min(folds, len(X))):
+        without = fit_on(np.setdiff1d(np.arange(len(X)), fold))
+        out[fold] -= without.error(spec, X[fold], nominal)
+    return out
+
+
+def moved_frames_on(
+    base: PhysicsBase,
+    spec: FeatureSpec,
+    X: np.ndarray,
+    Y: np.ndarray,
+    residual: np.ndarray,
+    priors: FramePriors,
+) -> Callable[[np.ndarray], PhysicsBase]:
+    """``base``'s frames re-identified as a move is (``priors.moved_m``) on some rows of
+    ``X, Y``: the fit :func:`held_out_labels` repeats for a carry whose frames moved."""
+
+    def fit_on(rows: np.ndarray) -> PhysicsBase:
+        return reidentify_frames(
+            base,
+            spec,
+            X[rows],
+            Y[rows],
+            residual=residual[rows],
+            prior_m=priors.moved_m,
+            tracker_free=priors.tracker_free,
+        )
+
+    return fit_on
 
 
 def residual_gain(

@@ -41,13 +41,12 @@ from learner.carry import (
     CarriedDay,
     FramePriors,
     carried_frames,
-    held_out_labels,
     hold_day,
     position_factor,
     scale_needed,
     unverified,
 )
-from learner.carry_base import carried_base
+from learner.carry_base import carried_base, checking_labels
 from learner.config import ContinualConfig
 from learner.conformal import adapt_log_scale, take_up
 from learner.continual_base import REFINED, doubled, due, memory_base, refined_base, status
@@ -265,28 +264,30 @@ class ContinualLearner:
         are there (its mark kept until they are spread: :func:`~learner.carry.hold_day`). Until
         then the scale is the model's times its ``drift_scale`` (not again on a young day), or,
         where the frames moved or these points need a far wider one, no narrower than they show
-        (:func:`~learner.carry.held_out_labels`) and ``unverified``
-        (:func:`~learner.carry.unverified`). Its points refit its frames (:class:`CarriedDay`)."""
+        (:func:`~learner.carry_base.checking_labels`) and ``unverified``
+        (:func:`~learner.carry.unverified`); a reference program that fitted the geometry checks
+        them itself: the scale its folds need, times the drift. Its points refit its frames."""
         X, Y = checked_batch(X, Y, self.model.spec.n_features)
         needed, miss = scale_needed(self.model, X, Y)
         young = self.day_scale is not None and len(self._cal_x) < MIN_DAY_POINTS
         drift = np.ones_like(self.model.drift_scale) if young else self.model.drift_scale
-        spec, residual, priors = self.model.spec, self.model.residual(X), FramePriors.of(self.cfg)
-        old, (base, moved) = self.base, carried_base(self.base, spec, X, Y, residual, self.cfg)
-        source = base if self.cfg.reference_program else old  # what the day's refits centre on
+        spec, residual = self.model.spec, self.model.residual(X)
+        old, start = self.base, carried_base(self.base, spec, X, Y, residual, self.cfg)
+        source = start.base if self.cfg.reference_program else old  # the day's refits' centre
         self.day = CarriedDay.start(source, len(X), spec.n_features, self.n_seen)
-        self.rebase(base)
+        self.rebase(start.base)
         self._cal_x, self._cal_y = self._cal_x[:0], self._cal_y[:0]
         self.trained.residual_gain = self.model.weigh_residual(X, Y)
         scale = self.model.interval_scale * drift  # a later day, as its own last hours showed
-        self.model.unverified = unverified(moved, miss / position_factor(drift), len(X))
-        if moved:
-            needed = self.model.calibrate(
-                X, held_out_labels(old, spec, X, Y, residual, priors, base)
-            )
-        if self.model.unverified:
+        mark = unverified(start.moved, miss / position_factor(drift), len(X))
+        labels = checking_labels(start, old, spec, X, Y, residual, self.cfg)
+        if labels is not None:
+            needed = self.model.calibrate(X, labels)
+        if start.refitted:
+            scale, mark = needed * drift, ""
+        elif mark:
             scale = np.maximum(scale, needed)
-        self.model.interval_scale = scale
+        self.model.interval_scale, self.model.unverified = scale, mark
         self.day_scale = scale / np.exp(self.aci_log_scale)
         return self.trained.residual_gain
 

@@ -10,7 +10,8 @@ from kinematics.identification.fitting import fit_effects
 from kinematics.importers.ipa import import_series
 from kinematics.model import RobotModel
 from learner.base import identify_base, measured_dataset
-from learner.carry import FramePriors, held_out_labels, reidentify_frames
+from learner.carry import FramePriors, reidentify_frames
+from learner.carry_base import held_out_labels, moved_frames_on
 from learner.workflow import prepare
 from tests.learner.conftest import make_dataset
 from tests.learner.test_base import _frame, _moved, _position_mm
@@ -94,7 +95,8 @@ def test_held_out_labels_show_what_the_frames_miss_beyond_their_own_points(point
     Y2 = _moved(p, _frame([2e-3, -1e-3, 0.5e-3], 2e-3), _frame([0, 1e-3, 0], 1e-3))
     X, Y, none = p.X[200 : 200 + k], Y2[200 : 200 + k], np.zeros((k, 6))
     fitted = reidentify_frames(base, p.spec, X, Y, residual=none, prior_m=3e-4)
-    held = held_out_labels(base, p.spec, X, Y, none, FramePriors(moved_m=3e-4), fitted)
+    fit_on = moved_frames_on(base, p.spec, X, Y, none, FramePriors(moved_m=3e-4))
+    held = held_out_labels(fitted, p.spec, X, Y, fit_on)
 
     def rms(Y: np.ndarray, X: np.ndarray) -> float:
         return float(
@@ -109,7 +111,6 @@ def test_held_out_labels_show_what_the_frames_miss_beyond_their_own_points(point
 def test_held_out_labels_of_one_point_are_its_own(points, base):
     p, Y = points, points.Y[:1]
     fitted = reidentify_frames(base, p.spec, p.X[:1], Y, residual=np.zeros((1, 6)), prior_m=3e-4)
-    held = held_out_labels(
-        base, p.spec, p.X[:1], Y, np.zeros((1, 6)), FramePriors(moved_m=3e-4), fitted
-    )
+    fit_on = moved_frames_on(base, p.spec, p.X[:1], Y, np.zeros((1, 6)), FramePriors())
+    held = held_out_labels(fitted, p.spec, p.X[:1], Y, fit_on)
     np.testing.assert_array_equal(held, Y)

@@ -15,6 +15,7 @@ from kinematics.transforms import apply_error, invert, pose_error, transform_fro
 from learner.base import identify_base
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from learner.continual import ContinualLearner
+from learner.metrics import interval_coverage
 from learner.model import ErrorModel
 from learner.snapshot import snapshot_from_bytes, snapshot_to_bytes
 from learner.workflow import prepare
@@ -129,3 +130,22 @@ def test_a_reference_program_too_short_for_the_geometry_keeps_it_and_says_so(day
 def test_reference_program_must_be_a_boolean():
     with pytest.raises(ConfigError, match="continual.reference_program must be true or false"):
         ContinualConfig(reference_program=1)
+
+
+def test_a_reference_program_checks_the_intervals_itself(day, longer_arm):
+    """Its poses are spread over the workspace, so the base fitted again without each fold
+    checks the intervals everywhere: the day starts trusted, its 90 % intervals sized by
+    those folds; frames alone on the same poses start it unverified."""
+    p, model, T_nominal, _, _, frames = day
+    Y = pose_error(invert(frames["true"])[None] @ longer_arm, T_nominal)
+    program = reference_order(p.spec.description, p.X[:, :6], 60)
+    rest = np.setdiff1d(np.arange(len(p.X)), program)
+    covered, marks = {}, {}
+    for reference in (True, False):
+        cfg = ContinualConfig(new_setup=True, reference_program=reference)
+        learner = ContinualLearner(snapshot_from_bytes(snapshot_to_bytes(model)), cfg)
+        learner.carry(p.X[program], Y[program])
+        covered[reference] = interval_coverage(learner.model.predict(p.X[rest]), Y[rest], 0.9)
+        marks[reference] = learner.model.unverified
+    assert marks[True] == "" and marks[False]
+    assert 0.8 <= covered[True] <= 0.97 < covered[False]  # measured 0.925 against 1.0
