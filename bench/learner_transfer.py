@@ -41,7 +41,8 @@ in the frames the model's own day gave (each day's fitted on its own points).
 coverage of the trusted answers; the coverage of the update's own batch, scored before it was
 learned (prequential), with the share of it compensation would have trusted then and their coverage
 (what a line asking then got); and the coverage of the test points the stream has already passed in
-recorded order and of those still ahead of it.
+recorded order and of those still ahead of it, the latter also with the intervals as wide as a day
+the model has not seen gets (``learner.carry.before_day``: times its ``drift_scale``).
 
 
     .venv/bin/python bench/learner_transfer.py --a /tmp/a.parquet --b /tmp/b.parquet --seeds 0 1 2
@@ -230,8 +231,9 @@ def whole_day(run: Carry, n: int) -> list[dict]:
     stream, test = order[:n], np.sort(p.test)
     X, Y, Xte, Yte = p.X[stream], p.Y[stream], p.X[test], p.Y[test]
 
-    def covered(m: np.ndarray) -> float:
-        return accuracy_report(learner.model, Xte[m], Yte[m]).coverage_90 if m.any() else np.nan
+    def covered(m: np.ndarray, model: ErrorModel | None = None) -> float:
+        model = model or learner.model
+        return accuracy_report(model, Xte[m], Yte[m]).coverage_90 if m.any() else np.nan
 
     learner.carry(X[: cfg.init], Y[: cfg.init])
     rows = []
@@ -257,6 +259,7 @@ def whole_day(run: Carry, n: int) -> list[dict]:
                 "coverage_90_prequential_trusted": live_covered,
                 "coverage_90_passed": covered(passed),
                 "coverage_90_ahead": covered(~passed),
+                "coverage_90_ahead_drift_wide": covered(~passed, before_day(learner.model)),
             }
         )
     return rows
