@@ -88,7 +88,19 @@ def checking_labels(
             return carried_base(base, spec, X[rows], Y[rows], residual[rows], cfg).base
 
     elif start.moved:
-        fit_on = moved_frames_on(base, spec, X, Y, residual, FramePriors.of(cfg))
+        priors = FramePriors.of(cfg)
+
+        def fit_on(rows: np.ndarray) -> PhysicsBase:
+            return reidentify_frames(
+                base,
+                spec,
+                X[rows],
+                Y[rows],
+                residual=residual[rows],
+                prior_m=priors.moved_m,
+                tracker_free=priors.tracker_free,
+            )
+
     else:
         return None
     return held_out_labels(start.base, spec, X, Y, fit_on)
@@ -116,31 +128,6 @@ def held_out_labels(
         without = fit_on(np.setdiff1d(np.arange(len(X)), fold))
         out[fold] -= without.error(spec, X[fold], nominal)
     return out
-
-
-def moved_frames_on(
-    base: PhysicsBase,
-    spec: FeatureSpec,
-    X: np.ndarray,
-    Y: np.ndarray,
-    residual: np.ndarray,
-    priors: FramePriors,
-) -> Callable[[np.ndarray], PhysicsBase]:
-    """``base``'s frames re-identified as a move is (``priors.moved_m``) on some rows of
-    ``X, Y``: the fit :func:`held_out_labels` repeats for a carry whose frames moved."""
-
-    def fit_on(rows: np.ndarray) -> PhysicsBase:
-        return reidentify_frames(
-            base,
-            spec,
-            X[rows],
-            Y[rows],
-            residual=residual[rows],
-            prior_m=priors.moved_m,
-            tracker_free=priors.tracker_free,
-        )
-
-    return fit_on
 
 
 def residual_gain(

@@ -9,9 +9,9 @@ from kinematics.identification.conditions import observations_from_dataset
 from kinematics.identification.fitting import fit_effects
 from kinematics.importers.ipa import import_series
 from kinematics.model import RobotModel
-from learner.base import identify_base, measured_dataset
-from learner.carry import FramePriors, reidentify_frames
-from learner.carry_base import held_out_labels, moved_frames_on
+from learner.base import PhysicsBase, identify_base, measured_dataset
+from learner.carry import reidentify_frames
+from learner.carry_base import held_out_labels
 from learner.workflow import prepare
 from tests.learner.conftest import make_dataset
 from tests.learner.test_base import _frame, _moved, _position_mm
@@ -95,7 +95,10 @@ def test_held_out_labels_show_what_the_frames_miss_beyond_their_own_points(point
     Y2 = _moved(p, _frame([2e-3, -1e-3, 0.5e-3], 2e-3), _frame([0, 1e-3, 0], 1e-3))
     X, Y, none = p.X[200 : 200 + k], Y2[200 : 200 + k], np.zeros((k, 6))
     fitted = reidentify_frames(base, p.spec, X, Y, residual=none, prior_m=3e-4)
-    fit_on = moved_frames_on(base, p.spec, X, Y, none, FramePriors(moved_m=3e-4))
+
+    def fit_on(rows: np.ndarray) -> PhysicsBase:
+        return reidentify_frames(base, p.spec, X[rows], Y[rows], residual=none[rows], prior_m=3e-4)
+
     held = held_out_labels(fitted, p.spec, X, Y, fit_on)
 
     def rms(Y: np.ndarray, X: np.ndarray) -> float:
@@ -111,6 +114,5 @@ def test_held_out_labels_show_what_the_frames_miss_beyond_their_own_points(point
 def test_held_out_labels_of_one_point_are_its_own(points, base):
     p, Y = points, points.Y[:1]
     fitted = reidentify_frames(base, p.spec, p.X[:1], Y, residual=np.zeros((1, 6)), prior_m=3e-4)
-    fit_on = moved_frames_on(base, p.spec, p.X[:1], Y, np.zeros((1, 6)), FramePriors())
-    held = held_out_labels(fitted, p.spec, p.X[:1], Y, fit_on)
+    held = held_out_labels(fitted, p.spec, p.X[:1], Y, lambda rows: base)
     np.testing.assert_array_equal(held, Y)
