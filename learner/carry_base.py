@@ -79,7 +79,7 @@ def checking_labels(
 ) -> np.ndarray | None:
     """The labels on which a day carried from ``base`` to ``start`` checks its intervals, each
     of its first points ``X, Y`` as the same fit without its fold leaves it
-    (:func:`learner.carry.held_out_labels`): a reference program's whole
+    (:func:`held_out_labels`): a reference program's whole
     :func:`carried_base` where it fitted the geometry (spread over the workspace, its folds
     check the intervals everywhere), else a move's frames; None where the frames held."""
     if start.refitted:
