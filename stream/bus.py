@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import os
 import queue
+import random
 import socket
 import threading
 import time
@@ -107,11 +108,35 @@ class BusConfig:
         )
 
 
+#: Where :func:`free_port` draws from when the kernel does not say where its ephemeral range
+#: starts (Linux's default).
+EPHEMERAL_LOW = 32768
+
+
+def ephemeral_low() -> int:
+    """The first port of the kernel's ephemeral range (Linux: ``ip_local_port_range``)."""
+    try:
+        with open("/proc/sys/net/ipv4/ip_local_port_range") as f:
+            return int(f.read().split()[0])
+    except (OSError, ValueError, IndexError):
+        return EPHEMERAL_LOW
+
+
 def free_port() -> int:
-    """A TCP port on 127.0.0.1 that is free right now."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A TCP port on 127.0.0.1 that is free right now, drawn at random below the kernel's
+    ephemeral range: a port the kernel hands out (a bind to 0) may be taken again by any
+    outgoing connection before the caller listens on it (a CI run's daemon lost its port so,
+    "Address already in use"); below the range only an explicit bind takes it."""
+    draw = random.SystemRandom()
+    for _ in range(200):
+        port = draw.randrange(10000, max(ephemeral_low(), 10001))
+        with socket.socket() as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
+    raise OSError("no free TCP port on 127.0.0.1 below the ephemeral range")
 
 
 def zenoh_config(cfg: BusConfig) -> zenoh.Config:

@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import socket
 import subprocess
 import sys
 import tempfile
@@ -24,6 +23,7 @@ from optuna.trial import TrialState
 
 from kinematics.dataset import write_dataset
 from learner.hpo_study import WORKER_ATTR, open_storage
+from stream.bus import free_port
 from tests.learner.test_hpo import TINY_TOML, toy_dataset
 
 pytestmark = pytest.mark.integration
@@ -35,12 +35,6 @@ def _pg_bin() -> Path | None:
         return found[-1].parent
     on_path = shutil.which("pg_ctl")
     return Path(on_path).parent if on_path else None
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")
@@ -61,7 +55,7 @@ def postgres_url() -> Iterator[str]:
     data = root / "data"
     if as_user:
         shutil.chown(root, "postgres")
-    port = _free_port()
+    port = free_port()
     subprocess.run(
         [*as_user, str(bindir / "initdb"), "-D", str(data), "-U", "postgres", "--auth=trust"],
         check=True,
@@ -133,7 +127,7 @@ def test_unreachable_postgres_exits_2(tmp_path, capsys):
     from stream.cli import main
 
     data = write_dataset(toy_dataset(20), tmp_path / "d.parquet")
-    url = f"postgresql+psycopg2://nobody@127.0.0.1:{_free_port()}/none"
+    url = f"postgresql+psycopg2://nobody@127.0.0.1:{free_port()}/none"
     pytest.importorskip("psycopg2", reason="psycopg2 driver not installed")
     assert main(["hpo", "--data", str(data), "--storage", url, "--base", "nominal"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
