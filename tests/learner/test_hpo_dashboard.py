@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import socket
 import sys
 import time
 import urllib.request
@@ -12,6 +11,7 @@ import pytest
 from kinematics.dataset import write_dataset
 from kinematics.errors import ConfigError
 from learner.hpo_dashboard import start_dashboard
+from stream.bus import free_port
 from stream.cli import main
 from tests.learner.test_hpo import toy_dataset
 
@@ -29,10 +29,7 @@ def test_missing_dashboard_is_one_line_exit_2(tmp_path, monkeypatch, capsys):
 
 def test_dashboard_serves_the_study(tmp_path):
     pytest.importorskip("optuna_dashboard", reason="optional extra not installed")
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    url = start_dashboard(tmp_path / "s.journal", port=port)
+    url = start_dashboard(tmp_path / "s.journal", port=free_port())
     deadline = time.monotonic() + 30
     while True:
         try:
