@@ -108,35 +108,43 @@ class BusConfig:
         )
 
 
-#: Where :func:`free_port` draws from when the kernel does not say where its ephemeral range
-#: starts (Linux's default).
-EPHEMERAL_LOW = 32768
+#: The kernel's ephemeral port range where it does not say (Linux's default).
+EPHEMERAL_RANGE = (32768, 60999)
 
 
-def ephemeral_low() -> int:
-    """The first port of the kernel's ephemeral range (Linux: ``ip_local_port_range``)."""
+def ephemeral_range() -> tuple[int, int]:
+    """The ports the kernel hands out to outgoing connections and binds to 0, first and last
+    (Linux: ``ip_local_port_range``)."""
     try:
         with open("/proc/sys/net/ipv4/ip_local_port_range") as f:
-            return int(f.read().split()[0])
-    except (OSError, ValueError, IndexError):
-        return EPHEMERAL_LOW
+            low, high = (int(v) for v in f.read().split()[:2])
+            return low, high
+    except (OSError, ValueError):
+        return EPHEMERAL_RANGE
 
 
 def free_port() -> int:
-    """A TCP port on 127.0.0.1 that is free right now, drawn at random below the kernel's
-    ephemeral range: a port the kernel hands out (a bind to 0) may be taken again by any
-    outgoing connection before the caller listens on it (a CI run's daemon lost its port so,
-    "Address already in use"); below the range only an explicit bind takes it."""
+    """A TCP port on 127.0.0.1 that is free right now, drawn at random outside the kernel's
+    ephemeral range (below it, else above it): a port the kernel hands out (a bind to 0) may
+    be taken again by any outgoing connection before the caller listens on it (a CI run's
+    daemon lost its port so, "Address already in use"); outside it only an explicit bind
+    takes one."""
+    low, high = ephemeral_range()
+    span = (10000, low) if low - 10000 >= 1000 else (high + 1, 65536)
+    if span[1] - span[0] < 1000:  # no room outside it: the kernel's choice
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            return s.getsockname()[1]
     draw = random.SystemRandom()
     for _ in range(200):
-        port = draw.randrange(10000, max(ephemeral_low(), 10001))
+        port = draw.randrange(*span)
         with socket.socket() as s:
             try:
                 s.bind(("127.0.0.1", port))
             except OSError:
                 continue
             return port
-    raise OSError("no free TCP port on 127.0.0.1 below the ephemeral range")
+    raise OSError(f"no free TCP port on 127.0.0.1 in {span[0]}-{span[1] - 1}")
 
 
 def zenoh_config(cfg: BusConfig) -> zenoh.Config:
