@@ -266,7 +266,7 @@ class ContinualLearner:
         where the frames moved or these points need a far wider one, no narrower than they show
         (:func:`~learner.carry_base.checking_labels`) and ``unverified``
         (:func:`~learner.carry.unverified`); a reference program that fitted the geometry checks
-        them itself: the scale its folds need, times the drift. Its points refit its frames."""
+        them itself: no narrower than its folds need, times the drift. Its points refit frames."""
         X, Y = checked_batch(X, Y, self.model.spec.n_features)
         needed, miss = scale_needed(self.model, X, Y)
         young = self.day_scale is not None and len(self._cal_x) < MIN_DAY_POINTS
@@ -283,8 +283,8 @@ class ContinualLearner:
         labels = checking_labels(start, old, spec, X, Y, residual, self.cfg)
         if labels is not None:
             needed = self.model.calibrate(X, labels)
-        if start.refitted:
-            scale, mark = needed * drift, ""
+        if start.refitted:  # minutes of poses: they widen the scale, never narrow it
+            scale, mark = np.maximum(scale, needed * drift), ""
         elif mark:
             scale = np.maximum(scale, needed)
         self.model.interval_scale, self.model.unverified = scale, mark

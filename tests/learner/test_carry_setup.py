@@ -134,8 +134,8 @@ def test_reference_program_must_be_a_boolean():
 
 def test_a_reference_program_checks_the_intervals_itself(day, longer_arm):
     """Its poses are spread over the workspace, so the base fitted again without each fold
-    checks the intervals everywhere: the day starts trusted, its 90 % intervals sized by
-    those folds; frames alone on the same poses start it unverified."""
+    checks the intervals everywhere: the day starts trusted, its 90 % intervals no narrower
+    than those folds need; frames alone on the same poses start it unverified."""
     p, model, T_nominal, _, _, frames = day
     Y = pose_error(invert(frames["true"])[None] @ longer_arm, T_nominal)
     program = reference_order(p.spec.description, p.X[:, :6], 60)
@@ -148,4 +148,4 @@ def test_a_reference_program_checks_the_intervals_itself(day, longer_arm):
         covered[reference] = interval_coverage(learner.model.predict(p.X[rest]), Y[rest], 0.9)
         marks[reference] = learner.model.unverified
     assert marks[True] == "" and marks[False]
-    assert 0.8 <= covered[True] <= 0.97 < covered[False]  # measured 0.925 against 1.0
+    assert 0.8 <= covered[True] <= 0.97 < covered[False]  # measured 0.953 against 1.0
