@@ -260,7 +260,7 @@ class ContinualConfig:
     first points, and held near that UR10 B's model was 1.73 mm off A after A's first 10.
     ``reference_program``: the carried day's first ``init`` points are a reference program
     spread over the workspace (``robocal data reference-poses``), so the base's geometry is
-    fitted again on them too (:func:`learner.carry_base.carried_base`) and its folds size
+    fitted again on them too (:func:`learner.carry_base.carried_base`) and its folds check
     the day's intervals (:func:`learner.carry_base.checking_labels`).
     ``aci_rate`` is the step of the adaptive conformal interval scale per new point outside
     (or inside) the ``aci_level`` interval, in log units (0 turns it off; it never narrows
