@@ -157,6 +157,7 @@ def joint_angles(path: Path) -> pd.DataFrame:
     :class:`DatasetError` where it has none or cannot be read."""
     import pandas as pd
 
+    from kinematics.dataset import joint_columns
     from kinematics.errors import DatasetError
 
     if path.suffix not in (".parquet", ".csv"):
@@ -165,14 +166,12 @@ def joint_angles(path: Path) -> pd.DataFrame:
         table = pd.read_parquet(path) if path.suffix == ".parquet" else pd.read_csv(path)
     except (OSError, ValueError) as exc:
         raise DatasetError(f"{path}: cannot be read: {exc}") from None
-    n = 0
-    while f"q{n + 1}" in table.columns:
-        n += 1
-    if not n:
+    columns = joint_columns(table)
+    if not columns:
         raise DatasetError(f"{path}: no joint angle columns q1..qn")
-    q = table[[f"q{i}" for i in range(1, n + 1)]]
+    q = table[columns]
     if not np.isfinite(q.to_numpy(float)).all():
-        raise DatasetError(f"{path}: joint angles q1..q{n} must be finite numbers")
+        raise DatasetError(f"{path}: joint angles q1..q{len(columns)} must be finite numbers")
     return q
 
 
