@@ -33,7 +33,7 @@ import torch
 
 from kinematics.dataset import Dataset, read_dataset, write_dataset
 from kinematics.frames import reframed
-from kinematics.reference import reference_order
+from kinematics.reference import program_first
 from kinematics.transforms import (
     transform_from_xyz_quat,
     transform_from_xyz_rpy,
@@ -101,7 +101,7 @@ def new_setup_day(day2: Path, init: int, reference: bool = False) -> Path:
     tracker's frame, whose ``T_W_0`` the day knows only as the nominal model's fit to its first
     ``init`` training points (:func:`kinematics.frames.reframed`), the points a carry starts on.
     With ``reference`` those are a reference program: the training rows' places are refilled so
-    that the :data:`REFERENCE_POSES` poses :func:`~kinematics.reference.reference_order` picks
+    that the :data:`REFERENCE_POSES` poses :func:`~kinematics.reference.program_first` picks
     among the first :data:`REFERENCE_WINDOW` come first, the rest after them in recorded order
     (the test rows, drawn by place, stay the same)."""
     path = day2.with_name(f"{day2.stem}_setup{init}{'_reference' if reference else ''}.parquet")
@@ -116,11 +116,9 @@ def new_setup_day(day2: Path, init: int, reference: bool = False) -> Path:
     seen = Dataset(t, replace(ds.meta, frame="tracker", T_W_0=NEW_SETUP.tolist()))
     train = np.sort(prepare(seen, test_fraction=0.1, seed=0).train)
     if reference:
-        early = train[:REFERENCE_WINDOW]
         desc = nominal_description(seen)
-        first = early[reference_order(desc, seen.q()[early], REFERENCE_POSES)]
         rows = np.arange(len(t))
-        rows[train] = np.concatenate([first, np.setdiff1d(train, first)])
+        rows[train] = program_first(desc, seen.q(), train, REFERENCE_POSES, REFERENCE_WINDOW)
         seen = Dataset(t.iloc[rows].reset_index(drop=True), seen.meta)
     write_dataset(reframed(seen, nominal_description(seen), train[:init]), path)
     return path

@@ -62,7 +62,7 @@ import torch
 
 from kinematics.dataset import Dataset, read_dataset, write_dataset
 from kinematics.frames import reframed
-from kinematics.reference import reference_order
+from kinematics.reference import program_first
 from learner.carry import before_day
 from learner.config import (
     DEFAULT_BASE,
@@ -149,10 +149,8 @@ def stream_order(run: Carry, target: Dataset, train: np.ndarray) -> np.ndarray:
     if run.order == "spread":
         return np.random.default_rng(run.seed).permutation(train)
     if run.order == "reference":
-        early = recorded[: run.window]
-        k = min(max(STEPS), len(early))
-        first = early[reference_order(nominal_description(target), target.q()[early], k)]
-        return np.concatenate([first, np.setdiff1d(recorded, first)])
+        desc = nominal_description(target)
+        return program_first(desc, target.q(), recorded, max(STEPS), run.window)
     return recorded
 
 

@@ -70,6 +70,17 @@ def reference_order(desc: RobotDescription, q: np.ndarray, k: int, first: int = 
     return np.asarray(order)
 
 
+def program_first(
+    desc: RobotDescription, q: np.ndarray, rows: np.ndarray, k: int, window: int
+) -> np.ndarray:
+    """``rows`` (indices into ``q``, ascending: recorded order) in the order a day that starts
+    with a reference program meets them: the first ``k`` of :func:`reference_order` among its
+    first ``window`` rows (fewer where the window is shorter), then the rest as recorded."""
+    early = np.asarray(rows)[:window]
+    first = early[reference_order(desc, np.asarray(q)[early], min(k, len(early)))]
+    return np.concatenate([first, np.setdiff1d(rows, first)])
+
+
 def position_rows(desc: RobotDescription, q: np.ndarray) -> np.ndarray:
     """``(N, 3, p)``: how each pose's position moves with the ``p`` geometry and frame
     parameters calibration identifies from these poses, each parameter's column scaled to unit

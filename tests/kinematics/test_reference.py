@@ -7,7 +7,7 @@ from kinematics.calibration import CalibrationConfig, identify, rest_observation
 from kinematics.description import load_description
 from kinematics.errors import ConfigError
 from kinematics.model import RobotModel
-from kinematics.reference import RIDGE, position_rows, reference_order
+from kinematics.reference import RIDGE, position_rows, program_first, reference_order
 
 UR10 = load_description("ur10")
 
@@ -52,6 +52,15 @@ def test_every_prefix_is_the_order_for_fewer_poses(program):
     full = reference_order(UR10, program, 30)
     for k in (1, 10, 20):
         assert reference_order(UR10, program, k).tolist() == full[:k].tolist()
+
+
+def test_a_day_meets_its_reference_program_first_then_the_rest_as_recorded(program):
+    rows = np.arange(5, len(program), 2)  # the day's rows, ascending
+    day = program_first(UR10, program, rows, 12, 30)
+    assert day[:12].tolist() == rows[:30][reference_order(UR10, program[rows[:30]], 12)].tolist()
+    assert sorted(day.tolist()) == rows.tolist()
+    assert np.all(np.diff(day[12:]) > 0)
+    assert len(program_first(UR10, program, rows[:8], 12, 30)) == 8  # a window shorter than k
 
 
 @pytest.mark.parametrize(
