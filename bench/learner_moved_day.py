@@ -14,8 +14,9 @@ frames; with ``--day2 new-setup`` in the frame of a tracker set up anew, as the 
 fits the day's first 50 training points: ``new_setup_day``; with ``--day2 reference`` a day that
 starts with a reference program of 100 poses, its frames from them) and, with
 ``--a`` / ``--b``, the real UR10 from Series A to Series B (nothing moved; the importer's
-registration differs per series). Source models: 300 epochs, geometric base, seed 0, cached
-in ``--cache``.
+registration differs per series). Source models: 300 epochs, geometric base (``--base gap``:
+their day's gap model, whose effects a reference program keeps or drops), seed 0, cached in
+``--cache``.
 
     .venv/bin/python bench/learner_moved_day.py --a /tmp/a.parquet --b /tmp/b.parquet \
         [--settings defaults "no fresh network"]
@@ -124,12 +125,13 @@ def new_setup_day(day2: Path, init: int, reference: bool = False) -> Path:
     return path
 
 
-def source_model(day: Path, folder: Path, epochs: int) -> Path:
-    """The model of ``day`` (geometric base + residual, seed 0), trained once into ``folder``."""
-    path = folder / f"{day.parent.name}_{day.stem}_e{epochs}.safetensors"
+def source_model(day: Path, folder: Path, epochs: int, base: str = DEFAULT_BASE) -> Path:
+    """The model of ``day`` (``base`` + residual, seed 0), trained once into ``folder``."""
+    tag = "" if base == DEFAULT_BASE else f"_{base}"
+    path = folder / f"{day.parent.name}_{day.stem}{tag}_e{epochs}.safetensors"
     if not path.is_file():
         result = train_on_dataset(
-            read_dataset(day), seed=0, train_cfg=TrainConfig(max_epochs=epochs), base=DEFAULT_BASE
+            read_dataset(day), seed=0, train_cfg=TrainConfig(max_epochs=epochs), base=base
         )
         write_trained(result, path)
     return path
@@ -162,6 +164,7 @@ def main() -> None:
     ap.add_argument("--max-epochs", type=int, default=300)
     ap.add_argument("--cache", help="folder keeping the days and source models between runs")
     ap.add_argument("--settings", nargs="+", choices=list(SETTINGS), default=list(SETTINGS))
+    ap.add_argument("--base", default=DEFAULT_BASE, help="the source models' base: a kind")
     ap.add_argument(
         "--day2",
         choices=("moved", "new-setup", "reference"),
@@ -183,7 +186,7 @@ def main() -> None:
             cases["UR10 A -> B"] = Path(args.a), Path(args.b)
         out = {}
         for name, (day1, day2) in cases.items():
-            model = source_model(day1, folder, args.max_epochs)
+            model = source_model(day1, folder, args.max_epochs, args.base)
             out[name] = {k: stream_day(model, day2, SETTINGS[k]) for k in args.settings}
             print(json.dumps({name: out[name]}), flush=True)
     print(

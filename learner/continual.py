@@ -46,7 +46,7 @@ from learner.carry import (
     scale_needed,
     unverified,
 )
-from learner.carry_base import carried_base, checking_labels
+from learner.carry_base import DayPoints, carried_base, checking_labels
 from learner.config import ContinualConfig
 from learner.conformal import adapt_log_scale, take_up
 from learner.continual_base import REFINED, doubled, due, memory_base, refined_base, status
@@ -271,16 +271,16 @@ class ContinualLearner:
         needed, miss = scale_needed(self.model, X, Y)
         young = self.day_scale is not None and len(self._cal_x) < MIN_DAY_POINTS
         drift = np.ones_like(self.model.drift_scale) if young else self.model.drift_scale
-        spec, residual = self.model.spec, self.model.residual(X)
-        old, start = self.base, carried_base(self.base, spec, X, Y, residual, self.cfg)
+        points = DayPoints(self.model.spec, X, Y, self.model.residual(X))
+        old, start = self.base, carried_base(self.base, points, self.cfg)
         source = start.base if self.cfg.reference_program else old  # the day's refits' centre
-        self.day = CarriedDay.start(source, len(X), spec.n_features, self.n_seen)
+        self.day = CarriedDay.start(source, len(X), points.spec.n_features, self.n_seen)
         self.rebase(start.base)
         self._cal_x, self._cal_y = self._cal_x[:0], self._cal_y[:0]
         self.trained.residual_gain = self.model.weigh_residual(X, Y)
         scale = self.model.interval_scale * drift  # a later day, as its own last hours showed
         mark = unverified(start.moved, miss / position_factor(drift), len(X))
-        labels = checking_labels(start, old, spec, X, Y, residual, self.cfg)
+        labels = checking_labels(start, old, points, self.cfg)
         if labels is not None:
             needed = self.model.calibrate(X, labels)
         if start.refitted:  # minutes of poses: they widen the scale, never narrow it

@@ -1,0 +1,83 @@
+"""A reference program keeps the effects a carried base brings where they hold on the day, and
+drops them where its folds show that geometry alone misses less (a source's effects fitted on a
+corner of its workspace)."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from kinematics.effects.gear_periodic import GearPeriodic
+from kinematics.gap.model_file import EffectEntry
+from kinematics.model import RobotModel
+from kinematics.reference import reference_order
+from learner.base import identify_base
+from learner.carry_base import DayPoints, carried_base
+from learner.config import ContinualConfig, ModelConfig, TrainConfig
+from learner.continual import ContinualLearner
+from learner.model import ErrorModel
+from learner.workflow import prepare
+from tests.learner.conftest import NOISE_M, make_dataset
+
+
+@pytest.fixture(scope="module")
+def geared():
+    """The perturbed Fanuc's 300 points; its geometric base of the first 200, and the same base
+    with gear errors of three harmonics on every joint (0.2 mrad each, 36 parameters: more than
+    a day's program identifies beside the geometry), as a source's ``robocal gap`` file brings
+    them; a model trained on the geared base."""
+    p = prepare(make_dataset(300, seed=3), test_fraction=0.0)
+    geometric = identify_base("geometric", p.spec, p.X[:200], p.Y[:200])
+    names = GearPeriodic(orders=(1, 2, 3)).parameter_names(p.spec.description)
+    values = np.random.default_rng(5).normal(0.0, 2e-4, len(names))
+    gear = EffectEntry(
+        name="gear_periodic",
+        options={"orders": [1, 2, 3]},
+        parameters=dict(zip(names, values, strict=True)),
+        std=dict.fromkeys(names, 2e-4),
+    )
+    with_gear = replace(geometric, effects=(gear,))
+    model = ErrorModel.create(
+        p.spec,
+        ModelConfig(hidden_layers=2, neurons=32),
+        TrainConfig(max_epochs=60),
+        0,
+        base=with_gear,
+    )
+    model.fit(p.X[:200], p.Y[:200])
+    return p, geometric, with_gear, model
+
+
+def the_day(p, robot):
+    """Labels (m, rad) of a day whose arm is ``robot`` (a base) exactly, with tracker noise."""
+    noise = np.random.default_rng(7).normal(0.0, NOISE_M, (len(p.X), 3))
+    Y = robot.error(p.spec, p.X, RobotModel(p.spec.description))
+    Y[:, :3] += noise
+    return Y
+
+
+@pytest.mark.parametrize("holds", [True, False])
+def test_a_reference_program_keeps_the_carried_effects_only_where_they_hold(geared, holds):
+    """A day whose arm has the gear error keeps it; a day whose arm has none drops it, says why,
+    and then misses the day's other points by less than the kept effects would."""
+    p, geometric, with_gear, model = geared
+    Y = the_day(p, with_gear if holds else geometric)
+    program = reference_order(p.spec.description, p.X[:, :6], 60)
+    rest = np.setdiff1d(np.arange(len(p.X)), program)
+    cfg = ContinualConfig(reference_program=True)
+    learner = ContinualLearner(model.clone(), cfg)
+    learner.carry(p.X[program], Y[program])
+    assert [e.name for e in learner.base.effects] == (["gear_periodic"] if holds else [])
+    if holds:
+        return
+    assert "geometry fitted again on its 60 points without the effects gear_periodic" in (
+        learner.base.note
+    )
+    nominal = RobotModel(p.spec.description)
+    day = DayPoints(p.spec, p.X[program], Y[program], model.residual(p.X[program]))
+    kept = carried_base(with_gear, day, cfg, keep_effects=True).base
+    miss = {
+        name: np.linalg.norm(base.error(p.spec, p.X[rest], nominal)[:, :3] - Y[rest, :3], axis=1)
+        for name, base in (("dropped", learner.base), ("kept", kept))
+    }
+    assert miss["dropped"].mean() < 0.8 * miss["kept"].mean()
