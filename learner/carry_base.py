@@ -54,8 +54,16 @@ class DayPoints:
         return DayPoints(self.spec, self.X[rows], self.Y[rows], self.residual[rows])
 
     def gain(self, base: PhysicsBase) -> float:
-        """:func:`residual_gain` of ``base`` on these points."""
-        return residual_gain(base, self.spec, self.X, self.Y, self.residual)
+        """The share in [0, 1] of the carried network's residual that explains what ``base``
+        leaves of the positions (least squares, m): what
+        :meth:`~learner.model.ErrorModel.weigh_residual` fits once the model stands on
+        ``base``, needed here before it does, since the network learned its residual on
+        another day."""
+        error = base.error(self.spec, self.X, RobotModel(self.spec.description))
+        left = np.asarray(self.Y, dtype=float)[:, :3] - error[:, :3]
+        power = float(np.sum(self.residual[:, :3] ** 2))
+        gain = float(np.sum(self.residual[:, :3] * left)) / power if power > 0 else 1.0
+        return float(np.clip(gain, 0.0, 1.0))
 
 
 @dataclass(frozen=True)
@@ -104,7 +112,7 @@ def day_fit(framed: PhysicsBase, day: DayPoints) -> PhysicsBase:
     """``framed`` fitted again on a reference program's points
     (:func:`learner.base.refit_base`, identified at most as ill-conditioned as ``auto`` allows),
     to the labels less the share of the network's residual it leaves room for
-    (:func:`residual_gain`)."""
+    (:meth:`DayPoints.gain`)."""
     labels = np.asarray(day.Y, dtype=float) - day.gain(framed) * day.residual
     return refit_base(framed, day.spec, day.X, labels, max_condition=AUTO_MAX_CONDITION)
 
@@ -154,12 +162,13 @@ def checking_labels(
         priors = FramePriors.of(cfg)
 
         def fit_on(rows: np.ndarray) -> PhysicsBase:
+            rest = day.rows(rows)
             return reidentify_frames(
                 base,
-                day.spec,
-                day.X[rows],
-                day.Y[rows],
-                residual=day.residual[rows],
+                rest.spec,
+                rest.X,
+                rest.Y,
+                residual=rest.residual,
                 prior_m=priors.moved_m,
                 tracker_free=priors.tracker_free,
             )
@@ -191,18 +200,3 @@ def held_out_labels(
         without = fit_on(np.setdiff1d(np.arange(len(X)), fold))
         out[fold] -= without.error(spec, X[fold], nominal)
     return out
-
-
-def residual_gain(
-    base: PhysicsBase, spec: FeatureSpec, X: np.ndarray, Y: np.ndarray, residual: np.ndarray
-) -> float:
-    """The share in [0, 1] of the carried network's ``residual`` (N, 6) that explains what
-    ``base`` leaves of the positions in ``Y`` (least squares, m): what
-    :meth:`~learner.model.ErrorModel.weigh_residual` fits once the model stands on ``base``,
-    needed here before it does, since the network learned its residual on another day."""
-    left = (
-        np.asarray(Y, dtype=float)[:, :3] - base.error(spec, X, RobotModel(spec.description))[:, :3]
-    )
-    power = float(np.sum(residual[:, :3] ** 2))
-    gain = float(np.sum(residual[:, :3] * left)) / power if power > 0 else 1.0
-    return float(np.clip(gain, 0.0, 1.0))
