@@ -307,7 +307,9 @@ class CarriedDay:
     they double, that error spreads out: arm 406 of ``sim_sources.unseen``, tracker moved by
     2 mm, ended its day at 0.110 mm on the first points' frames, at 0.061 mm fitted again
     (``bench/learner_moved_day.py``). ``seen_before``: the points the learner had been given
-    before the day (so that the day's own count schedules its fresh networks)."""
+    before the day (so that the day's own count schedules its fresh networks). ``aside``: the
+    base a reference program did not start on, its dropped effects in (its frames its own), weighed
+    again at each refit (:func:`learner.carry_base.day_frames`); None when nothing is aside."""
 
     source_frames: np.ndarray
     source_note: str
@@ -315,16 +317,22 @@ class CarriedDay:
     y: np.ndarray
     fitted: int
     seen_before: int = 0
+    aside: PhysicsBase | None = None
 
     @classmethod
     def start(
-        cls, source: PhysicsBase, n_fitted: int, n_features: int, seen_before: int = 0
+        cls,
+        source: PhysicsBase,
+        n_fitted: int,
+        n_features: int,
+        seen_before: int = 0,
+        aside: PhysicsBase | None = None,
     ) -> CarriedDay:
         """A day carried from ``source``, its frames fitted on its first ``n_fitted`` points,
-        after ``seen_before`` points of earlier days."""
+        after ``seen_before`` points of earlier days, with ``aside`` set aside."""
         frames = np.stack([source.T_0_B, source.description.tool])
         empty = np.empty((0, n_features)), np.empty((0, 6))
-        return cls(frames, source.note, *empty, fitted=n_fitted, seen_before=seen_before)
+        return cls(frames, source.note, *empty, n_fitted, seen_before, aside)
 
     def add(self, X: np.ndarray, Y: np.ndarray, limit: int) -> CarriedDay:
         """With the trained points ``X, Y`` of an update added (none past ``limit``)."""
@@ -343,6 +351,15 @@ class CarriedDay:
         T_0_B, tool = self.source_frames
         desc = replace(base.description, tool=tool)
         return replace(base, description=desc, T_0_B=T_0_B, note=self.source_note, frame_sigma=None)
+
+    def swapped(self, base: PhysicsBase) -> CarriedDay:
+        """The day carried from its :attr:`aside` instead; ``base``'s geometry and effects on
+        the frames it was carried from go aside in turn."""
+        assert self.aside is not None
+        frames = np.stack([self.aside.T_0_B, self.aside.description.tool])
+        return replace(
+            self, source_frames=frames, source_note=self.aside.note, aside=self.source(base)
+        )
 
     def holds(self, X: np.ndarray) -> np.ndarray:
         """Which rows of ``X`` are among its points (bool per row)."""

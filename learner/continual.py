@@ -39,14 +39,12 @@ from learner.base import PhysicsBase, identify_base, nominal_base
 from learner.carry import (
     MIN_DAY_POINTS,
     CarriedDay,
-    FramePriors,
-    carried_frames,
     hold_day,
     position_factor,
     scale_needed,
     unverified,
 )
-from learner.carry_base import DayPoints, carried_base, checking_labels
+from learner.carry_base import DayPoints, carried_base, checking_labels, day_frames
 from learner.config import ContinualConfig
 from learner.conformal import adapt_log_scale, take_up
 from learner.continual_base import REFINED, doubled, due, memory_base, refined_base, status
@@ -274,7 +272,7 @@ class ContinualLearner:
         points = DayPoints(self.model.spec, X, Y, self.model.residual(X))
         old, start = self.base, carried_base(self.base, points, self.cfg)
         source = start.base if self.cfg.reference_program else old  # the day's refits' centre
-        self.day = CarriedDay.start(source, len(X), points.spec.n_features, self.n_seen)
+        self.day = CarriedDay.start(source, len(X), X.shape[1], self.n_seen, start.aside)
         self.rebase(start.base)
         self._cal_x, self._cal_y = self._cal_x[:0], self._cal_y[:0]
         self.trained.residual_gain = self.model.weigh_residual(X, Y)
@@ -310,19 +308,19 @@ class ContinualLearner:
 
     def _follow_day(self, X: np.ndarray, Y: np.ndarray) -> None:
         """Add a carried day's trained points; when they have doubled, fit its frames again on
-        all of them from the frames it was carried from (:class:`CarriedDay`)."""
+        all of them from the frames it was carried from, and weigh what a reference program
+        set aside on its held-out points (:func:`~learner.carry_base.day_frames`)."""
         if self.day is None:
             return
         limit = self.cfg.day_frame_points
         day = self.day = self.day.add(X, Y, limit)
         if not day.due(limit):
             return
-        spec, residual = self.model.spec, self.model.residual(day.x)
-        base, _ = carried_frames(
-            day.source(self.base), spec, day.x, day.y, residual, FramePriors.of(self.cfg)
-        )
+        spec, residual = self.model.spec, self.model.residual
+        trained = DayPoints(spec, day.x, day.y, residual(day.x))
+        held = DayPoints(spec, self._cal_x, self._cal_y, residual(self._cal_x))
+        base, self.day = day_frames(day, self.base, trained, held, self.cfg)
         self.rebase(base, keep=day.holds(self._mem_x))
-        self.day = replace(day, fitted=len(day.x))
 
     def _adapt_intervals(self, X: np.ndarray, Y: np.ndarray) -> float:
         """Adaptive conformal inference on the interval scale, point by point in stream order

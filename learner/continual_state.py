@@ -16,9 +16,16 @@ from safetensors.numpy import load as np_load
 from safetensors.numpy import save as np_save
 
 from kinematics.errors import SnapshotError
+from learner.base import PhysicsBase
 from learner.carry import CarriedDay
 from learner.quarantine import state_from_dict as quarantine_from_dict
-from learner.snapshot import read_metadata, snapshot_from_bytes, snapshot_to_bytes
+from learner.snapshot import (
+    base_from_meta,
+    base_meta,
+    read_metadata,
+    snapshot_from_bytes,
+    snapshot_to_bytes,
+)
 
 
 def state_path(model_path: str | Path) -> Path:
@@ -28,7 +35,7 @@ def state_path(model_path: str | Path) -> Path:
 
 
 STATE_SCHEMA = "robocal.continual"
-_META = ("n_withheld", "quarantine_meta", "day_fitted", "day_note", "day_seen_before")
+_META = ("n_withheld", "quarantine_meta", "day_fitted", "day_note", "day_seen_before", "day_aside")
 
 
 def state_to_bytes(state: dict) -> bytes:
@@ -55,6 +62,8 @@ def state_to_bytes(state: dict) -> bytes:
         "day_x",
         "day_y",
         "day_frames",
+        "day_aside_T_0_B",
+        "day_aside_tool",
     )
     arrays = {k: np.ascontiguousarray(state[k]) for k in keys if k in state}
     return np_save(arrays, metadata={"robocal": json.dumps(meta)})
@@ -106,10 +115,21 @@ def learner_state(learner: Any) -> dict:
                 "day_seen_before": day.seen_before,
             }
         ),
+        **({} if day is None or day.aside is None else aside_state(day.aside)),
         **learner.quarantine.to_dict(),
         "rng": learner.rng.bit_generator.state,
         "model": snapshot_to_bytes(learner.model),
         "trained": snapshot_to_bytes(learner.trained),
+    }
+
+
+def aside_state(aside: PhysicsBase) -> dict:
+    """A carried day's base set aside (:attr:`CarriedDay.aside`) as state entries: its JSON
+    part as a snapshot records it, its frame and tool as arrays."""
+    return {
+        "day_aside": base_meta(aside),
+        "day_aside_T_0_B": np.asarray(aside.T_0_B, dtype=float),
+        "day_aside_tool": np.asarray(aside.description.tool, dtype=float),
     }
 
 
@@ -136,7 +156,12 @@ def restore_learner(learner: Any, state: dict) -> None:
             xy = np.asarray(state["day_x"], dtype=float), np.asarray(state["day_y"], dtype=float)
             # States written before the day's own count existed count it from the first point.
             before = int(state.get("day_seen_before", 0))
-            day = CarriedDay(frames, note, *xy, fitted=int(state["day_fitted"]), seen_before=before)
+            aside = None
+            if "day_aside" in state:
+                arrays = {k: state[f"day_aside_{k}"] for k in ("T_0_B", "tool")}
+                aside = base_from_meta(state["day_aside"], {f"base_{k}": arrays[k] for k in arrays})
+            fitted = int(state["day_fitted"])
+            day = CarriedDay(frames, note, *xy, fitted, before, aside)
     except (KeyError, TypeError, ValueError) as exc:
         raise SnapshotError(f"continual state is incomplete: {exc}") from None
     if model.feature_names != learner.model.feature_names:

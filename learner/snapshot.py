@@ -90,7 +90,7 @@ def snapshot_to_bytes(model: ErrorModel, extra_meta: dict | None = None) -> byte
         "seed": model.seed,
         "fitted": model.is_fitted,
         "metrics": model.metrics,
-        "base": None if base is None else _base_meta(base),
+        "base": None if base is None else base_meta(base),
         "residual_gain": model.residual_gain,
         "unverified": model.unverified,
         "extra": extra_meta or {},
@@ -156,7 +156,7 @@ def snapshot_from_bytes(data: bytes) -> ErrorModel:
             label_mean=tensors["label_mean"].numpy() if meta["fitted"] else None,
             label_std=tensors["label_std"].numpy() if meta["fitted"] else None,
             interval_scale=tensors["interval_scale"].numpy(),
-            base=_base_from_meta(meta.get("base"), tensors),
+            base=base_from_meta(meta.get("base"), tensors),
             residual_gain=float(meta.get("residual_gain", 1.0)),
             envelope=_envelope(tensors, spec),
             unverified=_unverified(meta.get("unverified")),
@@ -234,7 +234,7 @@ def _envelope(tensors: dict, spec: FeatureSpec) -> Envelope | None:
     )
 
 
-def _base_meta(base: PhysicsBase) -> dict:
+def base_meta(base: PhysicsBase) -> dict:
     """The physics base's JSON part (its frame and tool travel as float64 tensors)."""
     return {
         "kind": base.kind,
@@ -247,8 +247,9 @@ def _base_meta(base: PhysicsBase) -> dict:
     }
 
 
-def _base_from_meta(meta: dict | None, tensors: dict) -> PhysicsBase | None:
-    """The physics base a snapshot records (None before bases existed: the nominal)."""
+def base_from_meta(meta: dict | None, tensors: dict) -> PhysicsBase | None:
+    """The physics base a snapshot records (None before bases existed: the nominal); its
+    ``base_T_0_B``, ``base_tool`` (and ``base_frame_sigma``) from ``tensors``, torch or numpy."""
     if not meta:
         return None
     desc = description_from_dict(tomllib.loads(meta["description"]))
@@ -256,8 +257,8 @@ def _base_from_meta(meta: dict | None, tensors: dict) -> PhysicsBase | None:
     condition = meta.get("condition", _legacy_condition(note))
     return PhysicsBase(
         kind=str(meta["kind"]),
-        description=desc.with_tool(tensors["base_tool"].numpy()),
-        T_0_B=tensors["base_T_0_B"].numpy(),
+        description=desc.with_tool(np.asarray(tensors["base_tool"], dtype=float)),
+        T_0_B=np.asarray(tensors["base_T_0_B"], dtype=float),
         effects=tuple(EffectEntry(**e) for e in meta.get("effects", [])),
         note=note,
         condition=float("nan") if condition is None else float(condition),
@@ -272,7 +273,7 @@ def _frame_sigma(tensors: dict) -> np.ndarray | None:
     were not re-identified, or a snapshot written before it existed)."""
     if "base_frame_sigma" not in tensors:
         return None
-    sigma = tensors["base_frame_sigma"].numpy()
+    sigma = np.asarray(tensors["base_frame_sigma"], dtype=float)
     if sigma.ndim != 4 or sigma.shape[1:] != (2, 4, 4):
         raise SnapshotError(f"base_frame_sigma has shape {sigma.shape}, expected (r, 2, 4, 4)")
     return sigma

@@ -1,6 +1,6 @@
 """A reference program keeps the effects a carried base brings where they hold on the day, and
 drops them where its folds show that geometry alone misses less (a source's effects fitted on a
-corner of its workspace)."""
+corner of its workspace); the day's held-out points weigh what it set aside again."""
 
 from dataclasses import replace
 
@@ -12,9 +12,11 @@ from kinematics.gap.model_file import EffectEntry
 from kinematics.model import RobotModel
 from kinematics.reference import reference_order
 from learner.base import identify_base
-from learner.carry_base import DayPoints, carried_base
+from learner.carry import CarriedDay
+from learner.carry_base import DayPoints, carried_base, day_frames
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
 from learner.continual import ContinualLearner
+from learner.continual_state import state_from_bytes, state_to_bytes
 from learner.model import ErrorModel
 from learner.workflow import prepare
 from tests.learner.conftest import NOISE_M, make_dataset
@@ -73,6 +75,13 @@ def test_a_reference_program_keeps_the_carried_effects_only_where_they_hold(gear
     assert "geometry fitted again on its 60 points without the effects gear_periodic" in (
         learner.base.note
     )
+    aside = learner.day.aside  # set aside for the day's own points to weigh again
+    assert [e.name for e in aside.effects] == ["gear_periodic"]
+    restarted = ContinualLearner(model.clone(), cfg)
+    restarted.load_state(state_from_bytes(state_to_bytes(learner.state_dict())))
+    again = restarted.day.aside
+    assert again.effects == aside.effects and np.array_equal(again.T_0_B, aside.T_0_B)
+    assert np.array_equal(again.description.tool, aside.description.tool)
     nominal = RobotModel(p.spec.description)
     day = DayPoints(p.spec, p.X[program], Y[program], model.residual(p.X[program]))
     kept = carried_base(with_gear, day, cfg, keep_effects=True).base
@@ -81,3 +90,36 @@ def test_a_reference_program_keeps_the_carried_effects_only_where_they_hold(gear
         for name, base in (("dropped", learner.base), ("kept", kept))
     }
     assert miss["dropped"].mean() < 0.8 * miss["kept"].mean()
+
+
+@pytest.mark.parametrize("geared_arm", [True, False])
+def test_the_days_held_out_points_bring_back_effects_set_aside_only_where_they_hold(
+    geared, geared_arm
+):
+    """A day that started without the gear terms (its program's folds dropped them) takes them
+    back when its held-out points show that they miss less, and says so; where its arm has
+    none, the base it started on stays and the effects stay aside."""
+    p, geometric, with_gear, model = geared
+    Y = the_day(p, with_gear if geared_arm else geometric)
+    cfg = ContinualConfig(reference_program=True)
+    day = CarriedDay.start(geometric, 60, p.spec.n_features, aside=with_gear)
+    day = day.add(p.X[:200], Y[:200], cfg.day_frame_points)
+    trained, held = (
+        DayPoints(p.spec, p.X[rows], Y[rows], model.residual(p.X[rows]))
+        for rows in (slice(0, 200), slice(200, 260))
+    )
+    base, after = day_frames(day, geometric, trained, held, cfg)
+    assert after.fitted == 200
+    effects = [e.name for e in base.effects]
+    if not geared_arm:
+        assert effects == [] and after.aside is with_gear
+        return
+    assert effects == ["gear_periodic"] and after.aside.effects == ()
+    assert "the day's 60 held-out points took this base over at 200 points" in base.note
+    nominal = RobotModel(p.spec.description)
+    rest = slice(260, 300)
+    miss = {
+        name: np.linalg.norm(b.error(p.spec, p.X[rest], nominal)[:, :3] - Y[rest, :3], axis=1)
+        for name, b in (("taken", base), ("started", day.source(geometric)))
+    }
+    assert miss["taken"].mean() < 0.5 * miss["started"].mean()
