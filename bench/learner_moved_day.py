@@ -8,15 +8,18 @@ prequential mean error and 90 % coverage (each batch scored before it is learned
 saw during the day) and the final model's mean, p95 and 90 % coverage on the day's held-out 10 %.
 
 Cases: random arms of ``sim_sources.unseen`` (``--arms``; 1,200 points, a hidden effect of 8
-noise floors by seed, geometric error of 20; day 1 the poses with q1 below its median, day 2
-the rest with the tracker moved by 2 mm / 2 mrad and the tool by 1 mm / 1 mrad, in the old
-frames; with ``--day2 new-setup`` in the frame of a tracker set up anew, as the nominal model
-fits the day's first 50 training points: ``new_setup_day``; with ``--day2 reference`` a day that
-starts with a reference program of 100 poses, its frames from them) and, with
+noise floors by seed, geometric error of 20; day 1 the poses with q1 below its median
+(``--day1 corner``: below its lowest :data:`CORNER` share, a source that saw one corner), day 2
+the poses with q1 above its median, with the tracker moved by 2 mm / 2 mrad and the tool by
+1 mm / 1 mrad, in the old frames; with ``--day2 new-setup`` in the frame of a tracker set up
+anew, as the nominal model fits the day's first 50 training points: ``new_setup_day``; with
+``--day2 reference`` a day that starts with a reference program of 100 poses, its frames from
+them) and, with
 ``--a`` / ``--b``, the real UR10 from Series A to Series B (nothing moved; the importer's
 registration differs per series). Source models: 300 epochs, geometric base (``--base gap``:
-their day's gap model, whose effects a reference program keeps or drops), seed 0, cached in
-``--cache``.
+their day's gap model, whose effects a reference program keeps or drops, and the day's
+held-out points weigh again), seed 0, cached in ``--cache``. Each row also names the effects
+the day ended on.
 
     .venv/bin/python bench/learner_moved_day.py --a /tmp/a.parquet --b /tmp/b.parquet \
         [--settings defaults "no fresh network"]
@@ -69,11 +72,14 @@ SETTINGS = {
 REFERENCE_POSES, REFERENCE_WINDOW = 100, 400
 #: Where ``--day2 new-setup`` puts the tracker: metres from the old one, turned.
 NEW_SETUP = transform_from_xyz_rpy([2.5, -1.2, -0.8], [0.01, -0.02, 2.4])
+#: ``--day1 corner``: day 1 is the poses with q1 in this lowest share of its range of poses.
+CORNER = 0.3
 
 
-def moved_days(seed: int, folder: Path) -> tuple[Path, Path]:
-    """Arm ``seed``'s two days (written once into ``folder``): day 2 seen by a moved tracker."""
-    root = folder / f"arm{seed}"
+def moved_days(seed: int, folder: Path, corner: bool = False) -> tuple[Path, Path]:
+    """Arm ``seed``'s two days (written once into ``folder``): day 2 seen by a moved tracker;
+    with ``corner`` day 1 is q1's lowest :data:`CORNER` share."""
+    root = folder / f"arm{seed}{'_corner' if corner else ''}"
     day1, day2 = root / "day1.parquet", root / "day2.parquet"
     if day2.is_file():
         return day1, day2
@@ -86,7 +92,8 @@ def moved_days(seed: int, folder: Path) -> tuple[Path, Path]:
     )
     ds = read_dataset(write_unseen(spec, root)[0])
     t, cut = ds.table, ds.table.q1.median()
-    write_dataset(Dataset(t[t.q1 < cut].reset_index(drop=True), ds.meta), day1)
+    first = t.q1 < (t.q1.quantile(CORNER) if corner else cut)
+    write_dataset(Dataset(t[first].reset_index(drop=True), ds.meta), day1)
     later = t[t.q1 >= cut].reset_index(drop=True)
     T = transform_from_xyz_quat(
         later[["x", "y", "z"]].to_numpy(), later[["qx", "qy", "qz", "qw"]].to_numpy()
@@ -151,6 +158,7 @@ def stream_day(model_path: Path, day: Path, changed: dict) -> dict:
         "p95_mm": r.test.p95_mm,
         "coverage_90": r.test.coverage_90,
         "frames_fitted_on": r.learner.day.fitted,
+        "effects": [e.name for e in r.learner.base.effects],
         "updates": len(r.updates),
         "time_s": time.perf_counter() - start,
     }
@@ -172,12 +180,19 @@ def main() -> None:
         help="the arms' day 2 seen by the moved tracker in the old frames, or by one set up anew "
         "(reference: and starting with a reference program, its frames from the program's poses)",
     )
+    ap.add_argument(
+        "--day1",
+        choices=("half", "corner"),
+        default="half",
+        help="the arms' day 1: q1 below its median, or in its lowest CORNER share",
+    )
     args = ap.parse_args()
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(args.cache or tmp)
         folder.mkdir(parents=True, exist_ok=True)
-        cases = {f"arm {s} ({EFFECTS[s % 4]})": moved_days(s, folder) for s in args.arms}
+        corner = args.day1 == "corner"
+        cases = {f"arm {s} ({EFFECTS[s % 4]})": moved_days(s, folder, corner) for s in args.arms}
         if args.day2 != "moved":
             reference = args.day2 == "reference"
             init = REFERENCE_POSES if reference else ContinualConfig().init
@@ -191,16 +206,17 @@ def main() -> None:
             print(json.dumps({name: out[name]}), flush=True)
     print(
         "| case | setting | prequential mm | prequential 90 % cov. | final mean mm | p95 | "
-        "90 % cov. | fitted on | s |"
+        "90 % cov. | fitted on | effects at the end | s |"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for name, rows in out.items():
         for setting, r in rows.items():
             print(
                 f"| {name} | {setting} | {r['prequential_mm']:.4f} | "
                 f"{100 * r['prequential_coverage_90']:.1f} % | {r['mean_mm']:.4f} | "
                 f"{r['p95_mm']:.3f} | {100 * r['coverage_90']:.1f} % | "
-                f"{r['frames_fitted_on']} | {r['time_s']:.0f} |"
+                f"{r['frames_fitted_on']} | {', '.join(r['effects']) or '-'} | "
+                f"{r['time_s']:.0f} |"
             )
 
 
