@@ -133,6 +133,14 @@ def day_fit(framed: PhysicsBase, day: DayPoints) -> PhysicsBase:
     return refit_base(framed, day.spec, day.X, labels, max_condition=AUTO_MAX_CONDITION)
 
 
+def held_misses(base: PhysicsBase, trained: DayPoints, held: DayPoints) -> np.ndarray:
+    """How far (m) ``base`` and the network's residual, at the gain the ``trained`` points
+    leave it (:meth:`DayPoints.gain`), miss each ``held`` point's position."""
+    error = base.error(held.spec, held.X, RobotModel(held.spec.description))[:, :3]
+    error += trained.gain(base) * held.residual[:, :3]
+    return np.linalg.norm(error - held.Y[:, :3], axis=1)
+
+
 def keeps_effects(
     base: PhysicsBase, day: DayPoints, cfg: ContinualConfig, folds: int = 5
 ) -> tuple[bool, str]:
@@ -141,7 +149,7 @@ def keeps_effects(
     day's geometry alone, and the network's residual at the gain each leaves, miss it; the
     effects go only where geometry alone misses less at :data:`DROP_EFFECTS_P` (a source's
     effects fitted on a corner of its workspace). Returns the answer and a note of both."""
-    nominal, n, misses = RobotModel(day.spec.description), len(day.X), {}
+    n, misses = len(day.X), {}
     for keep in (True, False):
         miss = np.zeros(n)
         for fold in np.array_split(np.arange(n), min(folds, n)):
@@ -149,9 +157,7 @@ def keeps_effects(
             start = carried_base(base, rest, cfg, keep)
             if not (keep or start.refitted):
                 return True, ""  # the day's geometry alone is not identified: nothing to weigh
-            error = start.base.error(day.spec, day.X[fold], nominal)[:, :3]
-            error += rest.gain(start.base) * day.residual[fold, :3]
-            miss[fold] = np.linalg.norm(error - day.Y[fold, :3], axis=1)
+            miss[fold] = held_misses(start.base, rest, day.rows(fold))
         misses[keep] = miss
     p = ttest_rel(misses[True], misses[False], alternative="greater").pvalue
     note = (
@@ -174,8 +180,9 @@ def day_frames(
     priors = FramePriors.of(cfg)
 
     def refit(source: PhysicsBase) -> PhysicsBase:
-        t = trained
-        return carried_frames(source, t.spec, t.X, t.Y, t.residual, priors)[0]
+        return carried_frames(source, trained.spec, trained.X, trained.Y, trained.residual, priors)[
+            0
+        ]
 
     fitted, day = refit(day.source(base)), replace(day, fitted=len(trained.X))
     if day.aside is None or len(held.X) < MIN_DAY_POINTS:
@@ -192,14 +199,6 @@ def day_frames(
         f"the other {now.mean() * 1e3:.3f} mm, p = {p:.2g})"
     )
     return replace(other, note=note), day.swapped(base)
-
-
-def held_misses(base: PhysicsBase, trained: DayPoints, held: DayPoints) -> np.ndarray:
-    """How far (m) ``base`` and the network's residual, at the gain the ``trained`` points
-    leave it (:meth:`DayPoints.gain`), miss each ``held`` point's position."""
-    error = base.error(held.spec, held.X, RobotModel(held.spec.description))[:, :3]
-    error += trained.gain(base) * held.residual[:, :3]
-    return np.linalg.norm(error - held.Y[:, :3], axis=1)
 
 
 def checking_labels(

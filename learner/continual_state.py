@@ -158,8 +158,8 @@ def restore_learner(learner: Any, state: dict) -> None:
             before = int(state.get("day_seen_before", 0))
             aside = None
             if "day_aside" in state:
-                arrays = {k: state[f"day_aside_{k}"] for k in ("T_0_B", "tool")}
-                aside = base_from_meta(state["day_aside"], {f"base_{k}": arrays[k] for k in arrays})
+                arrays = {f"base_{k}": state[f"day_aside_{k}"] for k in ("T_0_B", "tool")}
+                aside = base_from_meta(state["day_aside"], arrays)
             fitted = int(state["day_fitted"])
             day = CarriedDay(frames, note, *xy, fitted, before, aside)
     except (KeyError, TypeError, ValueError) as exc:
