@@ -10,8 +10,6 @@ ones from their first points, ``auto``; ``nominal`` is the learner alone).
 
 import argparse
 import json
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -25,6 +23,7 @@ from learner.continual import ContinualLearner
 from learner.metrics import accuracy_report
 from learner.model import ErrorModel
 from learner.workflow import prepare
+from sim_sources import get_scenario, write_campaign
 
 
 def continual(p, strategy, train, model_cfg, base):
@@ -52,25 +51,8 @@ def main() -> None:
     args = ap.parse_args()
     model_cfg = ModelConfig(**json.loads(args.model))
     torch.set_num_threads(1)
-    if not Path(args.data).exists():
-        subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "stream.cli",
-                "sim",
-                "dataset",
-                "--scenario",
-                "paper",
-                "--n",
-                "3004",
-                "--seed",
-                "0",
-                "--out",
-                args.data,
-            ],
-            check=True,
-        )
+    if not Path(args.data).exists():  # the reference campaign, as `robocal sim dataset` writes it
+        write_campaign(get_scenario("paper"), 3004, 0, args.data)
     ds = read_dataset(args.data)
     p = prepare(ds, test_fraction=0.1, seed=0)
     out = {
