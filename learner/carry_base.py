@@ -180,9 +180,10 @@ def day_frames(
     priors = FramePriors.of(cfg)
 
     def refit(source: PhysicsBase) -> PhysicsBase:
-        return carried_frames(source, trained.spec, trained.X, trained.Y, trained.residual, priors)[
-            0
-        ]
+        framed, _ = carried_frames(
+            source, trained.spec, trained.X, trained.Y, trained.residual, priors
+        )
+        return framed
 
     fitted, day = refit(day.source(base)), replace(day, fitted=len(trained.X))
     if day.aside is None or len(held.X) < MIN_DAY_POINTS:
