@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 import torch
@@ -29,6 +30,20 @@ from scipy.special import gammaln
 from kinematics.errors import ConfigError
 
 _LOG_PI = math.log(math.pi)
+#: NIG parameters as arrays, tensors or numbers alike.
+Values = TypeVar("Values", np.ndarray, torch.Tensor, float)
+
+
+def served_mean(gamma: Values, nu: Values, alpha: Values, beta: Values) -> Values:
+    """The mean a model serves, in scaled label units: the network's ``gamma`` weighed against
+    the residual's prior N(0, 1) by its epistemic variance ``beta / (nu (alpha - 1))``, so that
+    where the network does not know, the prediction falls back to the base. Early stopping
+    scores this (:mod:`learner.training`).
+
+    >>> served_mean(2.0, nu=1.0, alpha=2.0, beta=1.0)  # epistemic variance 1: halfway
+    1.0
+    """
+    return gamma / (1.0 + beta / (nu * (alpha - 1.0)))
 
 
 def nig_nll(

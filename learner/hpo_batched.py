@@ -30,7 +30,7 @@ from torch.nn import functional as F  # noqa: N812
 from learner.base import PhysicsBase
 from learner.config import ModelConfig, TrainConfig
 from learner.ensemble import EvidentialEnsemble
-from learner.evidential import evidential_elements
+from learner.evidential import combine_members, evidential_elements, served_mean
 from learner.features import FeatureSpec
 from learner.model import N_LABELS, ErrorModel
 
@@ -114,6 +114,8 @@ def train_folds(
     bs = min(train_cfg.batch_size, width)
     best = np.full(K, np.inf)
     best_epoch = np.zeros(K, dtype=int)
+    best_mean = np.full(K, np.inf)  # the raw mean's score; the last epoch either score fell
+    progress = np.zeros(K, dtype=int)
     plateau_best = np.full(K, np.inf)
     bad = np.zeros(K, dtype=int)
     active = np.ones(K, dtype=bool)
@@ -139,11 +141,13 @@ def train_folds(
             finite = torch.isfinite(fold_loss)
             torch.where(finite, fold_loss, torch.zeros_like(fold_loss)).sum().backward()
             opt.step(finite & torch.as_tensor(active))
-        val = validation.mse(net, model_cfg.activation)
+        val, val_mean = validation.mse(net, model_cfg.activation)
         for k in np.flatnonzero(active):
             score = val[k] if math.isfinite(val[k]) else math.inf
             if score < best[k]:
-                best[k], best_epoch[k] = score, epoch
+                best[k], best_epoch[k], progress[k] = score, epoch, epoch
+            if val_mean[k] < best_mean[k]:  # the network's own mean still learns
+                best_mean[k], progress[k] = val_mean[k], epoch
             if score < plateau_best[k] * (1.0 - _PLATEAU_THRESHOLD):
                 plateau_best[k], bad[k] = score, 0
             else:
@@ -151,7 +155,7 @@ def train_folds(
                 if bad[k] > train_cfg.patience_lr:
                     opt.lr[k] *= _PLATEAU_FACTOR
                     bad[k] = 0
-            if epoch - best_epoch[k] >= train_cfg.early_stop_patience:
+            if epoch - progress[k] >= train_cfg.early_stop_patience:
                 active[k] = False
         if on_epoch is not None:
             on_epoch(epoch, best.copy())
@@ -225,14 +229,21 @@ class _FoldValidation:
         self.valid = torch.as_tensor(valid)
         self.count = self.valid.sum(dim=1)
 
-    def mse(self, net: EvidentialEnsemble, activation: str) -> np.ndarray:
-        """Per fold the validation MSE ``(K,)`` of the members' mean ``gamma`` (scaled units)."""
+    def mse(self, net: EvidentialEnsemble, activation: str) -> tuple[np.ndarray, np.ndarray]:
+        """Per fold the validation MSE ``(K,)`` of the mean the members serve together
+        (:func:`~learner.evidential.served_mean`, scaled units) and of their own mean
+        ``gamma``, as ``train_loop`` scores."""
         with torch.inference_mode():
             h = _forward(net, self.x, _ACTIVATIONS[activation], 0.0, False)
-            gamma = h[..., 0].view(self.K, self.M, N_LABELS, -1).mean(dim=1)  # (K, 6, W)
-            sq = (gamma.transpose(1, 2) - self.y).square().mean(dim=2)  # (K, W)
-            mse = (sq * self.valid).sum(dim=1) / self.count
-        return mse.double().numpy()
+            K, W = self.K, h.shape[1]
+            # (K * M * 6, W) heads -> (K * W, M * 6) rows of member-major heads, as a net outputs
+            nig = (t.reshape(K, -1, W).transpose(1, 2).reshape(K * W, -1) for t in _nig(h))
+            combined = combine_members(*nig, self.M)
+            scores = []
+            for mean in (served_mean(*combined), combined[0]):
+                sq = (mean.view(K, W, N_LABELS) - self.y).square().mean(dim=2)  # (K, W)
+                scores.append(((sq * self.valid).sum(dim=1) / self.count).double().numpy())
+        return scores[0], scores[1]
 
 
 class _FoldAdam:

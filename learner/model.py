@@ -6,7 +6,8 @@ labels stay DESIGN.md's (the error against the nominal) whatever the base. Input
 from the raw features by :mod:`learner.encoding` on scales fixed by the robot description
 (:class:`~learner.features.FeatureSpec`); the residual labels are standardised per component
 by a mean and std fixed on the model's first ``fit`` and never changed afterwards.
-Validation MSE is in these scaled label units (1.0 = the spread of the first training labels).
+Validation MSE is in these scaled label units (1.0 = the spread of the first training labels),
+of the mean the model serves (:func:`~learner.evidential.served_mean`).
 
 >>> from kinematics.description import load_description
 >>> from learner.features import feature_spec
@@ -32,7 +33,7 @@ from learner.config import ModelConfig, TrainConfig
 from learner.encoding import input_encoder, n_inputs
 from learner.ensemble import EvidentialEnsemble
 from learner.envelope import Envelope, widen
-from learner.evidential import Evidential, combine_members
+from learner.evidential import Evidential, combine_members, served_mean
 from learner.features import FeatureSpec, temperature_readings
 from learner.training import Trainer, TrainReport, train_loop
 
@@ -203,10 +204,9 @@ class ErrorModel:
         gamma, nu, alpha, beta = (t.double().numpy() for t in self.predict_scaled(self.scale_x(X)))
         mean = np.zeros(N_LABELS) if self.label_mean is None else self.label_mean
         std = np.ones(N_LABELS) if self.label_std is None else self.label_std
-        residual = mean + std * gamma
         if self.label_std is not None:  # the residual's prior N(mean, std²) meets the network's
-            epistemic = beta * std**2 / (nu * (alpha - 1.0))
-            residual = mean + (std**2 / (std**2 + epistemic)) * (residual - mean)
+            gamma = served_mean(gamma, nu, alpha, beta)
+        residual = mean + std * gamma
         base = self.base_error(X)
         beta = (beta * std**2 + self._frame_beta(X, base, nu, alpha)) * self.interval_scale**2
         gamma = self.residual_gain * residual + base

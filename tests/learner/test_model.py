@@ -5,6 +5,7 @@ from kinematics.description import load_description
 from kinematics.errors import DatasetError
 from kinematics.model import RobotModel
 from learner.config import ModelConfig, TrainConfig
+from learner.evidential import served_mean
 from learner.features import FeatureSpec, dataset_feature_spec, dataset_features, dataset_labels
 from learner.model import ErrorModel
 
@@ -48,7 +49,7 @@ def test_best_weights_are_kept_and_on_epoch_sees_every_epoch(data):
     report = m.fit(X[:200], Y[:200], X[200:260], Y[200:260], on_epoch=lambda e, v: seen.append(v))
     assert len(seen) == report.epochs == 25
     assert report.best_val_mse == min(seen)
-    pred = m.predict_scaled(m.scale_x(X[200:260]))[0]
+    pred = served_mean(*m.predict_scaled(m.scale_x(X[200:260])))
     val_mse = float(((pred - m.scale_y(Y[200:260])) ** 2).mean())
     assert val_mse == pytest.approx(report.best_val_mse, rel=1e-5)
 
@@ -72,7 +73,10 @@ def test_lr_is_cut_after_plateau_and_early_stop(data):
     m = _model(spec, max_epochs=60, patience_lr=1, early_stop_patience=5, lr=0.3)
     report = m.fit(X[:100], Y[:100])
     assert report.final_lr < 0.3
-    assert report.epochs < 60 and report.epochs - report.best_epoch == 5
+    # it stops once neither the served score nor the raw mean's has fallen for 5 epochs, and
+    # keeps the weights of the best served score
+    assert report.epochs < 60 and report.epochs - report.best_epoch >= 5
+    assert report.best_epoch == int(np.argmin(report.val_mse_history)) + 1
 
 
 def test_non_finite_loss_never_reaches_weights(data):
