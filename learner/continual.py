@@ -3,7 +3,7 @@
 Each :meth:`ContinualLearner.update` predicts memory ∪ new batch with the current model, ranks
 the pool by the Euclidean norm of the prediction error (in standardised label units, so
 position and orientation count alike), lets the replay strategy pick the new memory and trains
-the model warm-started on it, at the fine-tuning rate ``update_lr``. A ``holdout`` share of
+the model warm-started on it, its rate annealed from ``update_lr`` to 0. A ``holdout`` share of
 every batch never enters the pool: it joins a first-in-first-out set of the latest
 ``calibration_size`` such points, on which the intervals are calibrated after each training —
 data the model was never trained on (calibrating on the new batch before training on it let
@@ -18,7 +18,7 @@ last by more than ``quarantine.publish_tolerance`` is withheld.
 The model the learner publishes (:attr:`ContinualLearner.model`) is not the trained one
 (:attr:`ContinualLearner.trained`) but an exponential moving average of its weights over
 updates, the latest update's share ``average``: it keeps what the earlier memories taught
-(paper campaign 0.054 -> 0.050 mm, BENCHMARKS.md). Ranking and training use the trained weights.
+(BENCHMARKS.md, "Continual updates annealed"). Ranking and training use the trained weights.
 With ``refresh_growth`` (off by default) a fresh network is trained on the memory as the
 stream grows and kept where it predicts the held-out set better (:mod:`learner.refresh`); on a
 carried day ``day_refresh_growth`` (on) does so as the day's own points grow.
@@ -177,7 +177,7 @@ class ContinualLearner:
         mem, epochs = (self._mem_x, self._mem_y), self.cfg.update_epochs(len(self._mem_x))
         fit = {"val_fraction": 0.0, "lr": self.cfg.update_lr, "trainer": self.trainer}
         start = time.perf_counter()
-        report = self.trained.fit(*mem, *val, max_epochs=epochs, **fit)
+        report = self.trained.fit(*mem, *val, max_epochs=epochs, anneal=True, **fit)
         withheld, holdout_mm = self._publish_gated()
         self._reidentify()
         self._refresh(before)

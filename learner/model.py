@@ -285,6 +285,7 @@ class ErrorModel:
         max_epochs: int | None = None,
         val_fraction: float | None = None,
         lr: float | None = None,
+        anneal: bool = False,
         trainer: Trainer | None = None,
     ) -> TrainReport:
         """Train (warm-started from the current weights) with Adam and the evidential loss;
@@ -296,8 +297,9 @@ class ErrorModel:
         after every epoch (val MSE in scaled label units, train loss when no validation) and may
         raise to stop training (e.g. ``optuna.TrialPruned``); the exception propagates.
         ``max_epochs``, ``val_fraction`` and ``lr`` override the train config for this call;
-        ``trainer`` runs the loop (:func:`train_loop` here, or e.g. a
-        :class:`~learner.train_process.TrainProcess`).
+        ``anneal`` lets the rate fall to 0 over ``max_epochs`` instead of cutting it on
+        plateaus (a continual update's fixed budget); ``trainer`` runs the loop
+        (:func:`train_loop` here, or e.g. a :class:`~learner.train_process.TrainProcess`).
         """
         cfg = self.train_cfg
         X = np.asarray(X, dtype=float)
@@ -322,7 +324,8 @@ class ErrorModel:
         if X_val is not None:
             val = (self.scale_x(X_val), self.scale_y(_check_labels(Y_val) - self.base_error(X_val)))
         epochs = max_epochs or cfg.max_epochs
-        report = (trainer or train_loop)(self, Xs, Ys, val, gen, epochs, lr or cfg.lr, on_epoch)
+        loop = trainer or train_loop
+        report = loop(self, Xs, Ys, val, gen, epochs, lr or cfg.lr, on_epoch, anneal=anneal)
         if X_val is not None and len(X_val) >= MIN_CALIBRATION:
             self.calibrate(X_val, Y_val)
         return report

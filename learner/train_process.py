@@ -89,12 +89,14 @@ class TrainProcess:
         max_epochs: int,
         lr: float,
         on_epoch: Callable[[int, float], None] | None = None,
+        anneal: bool = False,
     ) -> TrainReport:
         """Train ``model.net`` in place as :func:`~learner.training.train_loop` does. With
         ``on_epoch`` (which may stop training by raising) the loop runs here."""
         if on_epoch is not None:
-            return train_loop(model, Xs, Ys, val, gen, max_epochs, lr, on_epoch)
-        job = {"max_epochs": max_epochs, "lr": lr, "threads": torch.get_num_threads()}
+            return train_loop(model, Xs, Ys, val, gen, max_epochs, lr, on_epoch, anneal)
+        job = {"max_epochs": max_epochs, "lr": lr, "anneal": anneal}
+        job["threads"] = torch.get_num_threads()
         tensors = {"x": Xs, "y": Ys, "gen_state": gen.get_state()}
         if val is not None:
             tensors["val_x"], tensors["val_y"] = val
@@ -118,7 +120,7 @@ class TrainProcess:
             self.trained += 1
             self._in_a_row = 0
             return TrainReport(**answer | {"val_mse_history": tuple(answer["val_mse_history"])})
-        return train_loop(model, Xs, Ys, val, gen, max_epochs, lr, on_epoch)
+        return train_loop(model, Xs, Ys, val, gen, max_epochs, lr, on_epoch, anneal)
 
     def _ask(self, request: bytes) -> bytes | None:
         """The child's reply (a new child if the last one ended), or None if it was lost."""
@@ -192,8 +194,8 @@ def _answer(request: bytes) -> bytes:
         gen = torch.Generator()
         gen.set_state(tensors["gen_state"])
         val = (tensors["val_x"], tensors["val_y"]) if "val_x" in tensors else None
-        epochs, lr = int(job["max_epochs"]), float(job["lr"])
-        report = train_loop(model, tensors["x"], tensors["y"], val, gen, epochs, lr, None)
+        epochs, lr, anneal = int(job["max_epochs"]), float(job["lr"]), bool(job["anneal"])
+        report = train_loop(model, tensors["x"], tensors["y"], val, gen, epochs, lr, None, anneal)
     except Exception as exc:  # noqa: BLE001 - reported to the caller, which trains itself
         return st_save({}, metadata={_KEY: json.dumps({"error": f"{type(exc).__name__}: {exc}"})})
     weights = {k: v.contiguous() for k, v in model.net.state_dict().items()}

@@ -1,5 +1,8 @@
 """The training loop of :class:`~learner.model.ErrorModel`: mini-batch Adam on the evidential
-loss, the learning rate cut on a plateau, early stopping on a validation set.
+loss, the learning rate cut on a plateau, early stopping on a validation set; or, for a
+continual update's fixed budget, the rate annealed to 0 along a half cosine (a constant
+fine-tuning rate left the published weights jittering: BENCHMARKS.md, "Continual updates
+annealed").
 
 The validation score is the MSE of the mean the model serves (the network's ``gamma`` weighed
 by its epistemic variance, :func:`~learner.evidential.served_mean`), not of ``gamma`` itself:
@@ -72,15 +75,21 @@ def train_loop(
     max_epochs: int,
     lr: float,
     on_epoch: Callable[[int, float], None] | None,
+    anneal: bool = False,
 ) -> TrainReport:
-    """Mini-batch Adam; a step whose loss or gradient is not finite is skipped and counted."""
+    """Mini-batch Adam; a step whose loss or gradient is not finite is skipped and counted.
+    With ``anneal`` the rate falls along a half cosine to 0 over ``max_epochs``, a fixed budget
+    (a continual update), instead of being cut on plateaus, and nothing stops it early."""
     cfg = model.train_cfg
     net = model.net
     params = list(net.parameters())
     opt = torch.optim.Adam(params, lr=lr, weight_decay=cfg.weight_decay, foreach=True)
-    sched = torch.optim.lr_scheduler.ReduceLROnPlateau(
-        opt, mode="min", factor=0.75, patience=cfg.patience_lr
-    )
+    if anneal:
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max_epochs)
+    else:
+        sched = torch.optim.lr_scheduler.ReduceLROnPlateau(
+            opt, mode="min", factor=0.75, patience=cfg.patience_lr
+        )
     start = time.perf_counter()
     n = Xs.shape[0]
     bs = min(cfg.batch_size, n)
@@ -125,10 +134,13 @@ def train_loop(
             best, best_epoch, progress = score, epoch, epoch
             if val is not None:
                 best_state = {k: v.detach().clone() for k, v in net.state_dict().items()}
-        sched.step(score if np.isfinite(score) else float("inf"))
+        if anneal:
+            sched.step()
+        else:
+            sched.step(score if np.isfinite(score) else float("inf"))
         if on_epoch is not None:
             on_epoch(epoch, score)
-        if val is not None and epoch - progress >= cfg.early_stop_patience:
+        if val is not None and not anneal and epoch - progress >= cfg.early_stop_patience:
             break
     if best_state is not None:
         net.load_state_dict(best_state)

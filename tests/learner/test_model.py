@@ -87,6 +87,19 @@ def test_lr_is_cut_after_plateau_and_early_stop(data):
     assert report.epochs - max(best_served, int(np.argmin(raw)) + 1) == 5
 
 
+def test_an_annealed_fit_runs_its_budget_with_the_rate_falling_to_zero(data):
+    """A continual update's fixed budget: the rate follows a half cosine to 0 over every epoch,
+    never cut on a plateau nor stopped early; the best epoch's weights are still kept."""
+    spec, X, Y = data
+    fit = {"X_val": X[100:130], "Y_val": Y[100:130], "lr": 0.3}
+    train = {"max_epochs": 60, "patience_lr": 1, "early_stop_patience": 5}
+    plateau = _model(spec, **train).fit(X[:100], Y[:100], **fit)
+    annealed = _model(spec, **train).fit(X[:100], Y[:100], anneal=True, **fit)
+    assert plateau.epochs < 60 and 0 < plateau.final_lr < 0.3
+    assert annealed.epochs == 60 and annealed.final_lr == pytest.approx(0.0, abs=1e-12)
+    assert annealed.best_epoch == int(np.argmin(annealed.val_mse_history)) + 1
+
+
 def test_non_finite_loss_never_reaches_weights(data):
     spec, X, Y = data
     m = _model(spec, max_epochs=2)

@@ -49,11 +49,13 @@ def trainer():
 
 
 def test_the_child_trains_the_weights_the_caller_would(trainer):
-    """Warm-started twice, with a validation split (early stopping, best epoch kept) and with
-    a given validation set: bit for bit the same weights, reports and calibration."""
+    """Warm-started three times, with a validation split (early stopping, best epoch kept), with
+    a given validation set and annealed (a continual update): bit for bit the same weights,
+    reports and calibration."""
     X, Y = _points(300, 0)
     here, there = _model(), _model()
-    for fit in (dict(max_epochs=40), dict(X_val=X[:40], Y_val=Y[:40], max_epochs=15, lr=3e-4)):
+    given = dict(X_val=X[:40], Y_val=Y[:40], max_epochs=15, lr=3e-4)
+    for fit in (dict(max_epochs=40), given, given | {"anneal": True}):
         a = here.fit(X[40:], Y[40:], **fit)
         b = there.fit(X[40:], Y[40:], **fit, trainer=trainer)
         assert _same_weights(here, there)
@@ -64,8 +66,8 @@ def test_the_child_trains_the_weights_the_caller_would(trainer):
             b.val_mse_history,
         )
         np.testing.assert_array_equal(here.interval_scale, there.interval_scale)
-    assert a.best_epoch < a.epochs  # the validation path was taken
-    assert trainer.trained == 2 and trainer.failures == 0
+    assert a.final_lr == pytest.approx(0.0, abs=1e-12)  # the annealed fit ran as annealed
+    assert trainer.trained == 3 and trainer.failures == 0
 
 
 def test_a_child_killed_between_or_during_updates_costs_no_update():
