@@ -241,14 +241,15 @@ class ContinualConfig:
     model is an exponential moving average of the trained weights over updates; ``average`` is
     the latest update's share (1 publishes the trained weights as they are). 0.7 with the
     annealed updates (0.4 under the constant rate): the paper campaign at N_m 2,000 +8.6 % ->
-    +4.5 % of batch over six seeds, four random arms streamed 10 % closer, UR10 B in recorded
-    order 4 % further (BENCHMARKS.md, "Continual updates annealed").
+    +4.4 % of batch over six seeds, four random arms streamed 10 % closer, UR10 A 6 % closer;
+    UR10 B in recorded order 4 % and N_m 500 16 % further (BENCHMARKS.md, "Continual updates
+    annealed").
     An update trains ``epochs_per_update`` epochs over up to ``update_points`` memory points
     and proportionally fewer over more (:meth:`update_epochs`), so a larger memory costs
     little update time. ``memory`` 4,000: a real line streams its program in order, sweeping
     the workspace, and UR10 Series A (10,720 points) streamed so ended at 0.150 mm against
-    0.213 mm at 2,000 (its batch model 0.081 mm; 0.124 mm at 4,000 with today's network and
-    ``average``); the paper campaign is the same at either (0.0252 / 0.0250 mm), random arms'
+    0.213 mm at 2,000 (its batch model 0.081 mm; 0.115 mm at 4,000 with today's network and
+    annealed updates); the paper campaign is the same at either (0.0252 / 0.0250 mm), random arms'
     6,000-point streams 0.093 against 0.095 mm (BENCHMARKS.md).
     ``calibration_size`` 1,000: a FIFO of 200 held only the front of a long stream, and its
     intervals covered 82-89 % of those arms' test points (now 90-91 %).
