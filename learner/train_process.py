@@ -95,8 +95,12 @@ class TrainProcess:
         ``on_epoch`` (which may stop training by raising) the loop runs here."""
         if on_epoch is not None:
             return train_loop(model, Xs, Ys, val, gen, max_epochs, lr, on_epoch, anneal)
-        job = {"max_epochs": max_epochs, "lr": lr, "anneal": anneal}
-        job["threads"] = torch.get_num_threads()
+        job = {
+            "max_epochs": max_epochs,
+            "lr": lr,
+            "anneal": anneal,
+            "threads": torch.get_num_threads(),
+        }
         tensors = {"x": Xs, "y": Ys, "gen_state": gen.get_state()}
         if val is not None:
             tensors["val_x"], tensors["val_y"] = val
