@@ -38,7 +38,7 @@ from safetensors.torch import save as st_save
 
 from learner.model import ErrorModel
 from learner.snapshot import read_metadata, snapshot_from_bytes, snapshot_to_bytes
-from learner.training import TrainReport, train_loop
+from learner.training import TrainReport, set_compute_threads, train_loop
 
 _KEY = "robocal.train"
 #: Failures in a row after which the caller's process trains from then on (a child that cannot
@@ -194,7 +194,7 @@ def _answer(request: bytes) -> bytes:
         job = read_metadata(request, _KEY)
         tensors = st_load(request)
         model = snapshot_from_bytes(tensors.pop("snapshot").numpy().tobytes())
-        torch.set_num_threads(int(job["threads"]))
+        set_compute_threads(int(job["threads"]))
         gen = torch.Generator()
         gen.set_state(tensors["gen_state"])
         val = (tensors["val_x"], tensors["val_y"]) if "val_x" in tensors else None

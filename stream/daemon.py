@@ -25,11 +25,11 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import torch
 import zenoh
 
 from kinematics.description import load_description
 from kinematics.model import RobotModel
+from learner.training import set_compute_threads
 from stream.bus import BusUnreachableError, open_session
 from stream.config import DaemonConfig, RobotConfig, dashboard_index
 from stream.dashboard import Dashboard
@@ -86,7 +86,7 @@ class Daemon:
         # Every robot's description first: a missing one stops the start before anything opens.
         self._descriptions = {rc.name: load_description(rc.description) for rc in cfg.robots}
         # Small MLPs train fastest on one thread; more threads spin against the stages' threads.
-        torch.set_num_threads(cfg.torch_threads)
+        set_compute_threads(cfg.torch_threads)
         if cfg.checkpoint_dir is not None:
             check_writable(cfg.checkpoint_dir, "checkpoint_dir")
         if cfg.recorder is not None:

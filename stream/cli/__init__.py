@@ -44,8 +44,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--torch-threads",
         type=int,
         default=1,
-        help="torch threads for training and prediction (default 1, as the daemon: a shared "
-        "machine runs many times slower with more)",
+        help="torch and BLAS threads for training and prediction (default 1, as the daemon: "
+        "a shared machine runs many times slower with more)",
     )
     top = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     groups: dict[str, argparse._SubParsersAction] = {}
@@ -71,9 +71,10 @@ def _cap_threads(n: int, uses_torch: bool = True) -> None:
         raise CLIUsageError(f"--torch-threads must be >= 1, got {n}")
     if not uses_torch:
         return
-    import torch  # every learning command imports it anyway; --help does not get here
+    # every learning command imports torch anyway; --help does not get here
+    from learner.training import set_compute_threads
 
-    torch.set_num_threads(n)
+    set_compute_threads(n)
 
 
 def main(argv: list[str] | None = None) -> int:

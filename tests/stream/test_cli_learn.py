@@ -5,6 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from threadpoolctl import threadpool_info, threadpool_limits
 
 from kinematics.dataset import temperature_columns, write_dataset
 from learner.snapshot import load_snapshot, save_snapshot
@@ -295,9 +296,17 @@ def test_the_cli_caps_torch_threads(data_file, tmp_path, capsys):
     argv = ["evaluate", "--model", str(tmp_path / "none.safetensors"), "--data", str(data_file)]
     assert main(["--torch-threads", "0", *argv]) == 2
     assert "--torch-threads must be >= 1" in capsys.readouterr().err
-    before = torch.get_num_threads()
+    before, blas_before = torch.get_num_threads(), _blas_threads()
     try:
         main(["--torch-threads", "2", *argv])  # the model is missing: exit 2, threads set first
-        assert torch.get_num_threads() == 2
+        assert torch.get_num_threads() == 2 and _blas_threads() == {2}
+        main(["--torch-threads", "1", *argv])  # BLAS too: its idle threads spin
+        assert torch.get_num_threads() == 1 and _blas_threads() == {1}
     finally:
         torch.set_num_threads(before)
+        threadpool_limits(limits=max(blas_before), user_api="blas")
+
+
+def _blas_threads() -> set[int]:
+    """The thread counts of the BLAS libraries loaded in this process."""
+    return {p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"}
