@@ -139,7 +139,8 @@ def _running(pid: int) -> bool:
 
 def test_a_child_ends_when_its_caller_is_killed_mid_fit(tmp_path):
     """A caller killed with -9 while its child trains (a daemon killed mid-fit) leaves no child
-    training on: it ends within a few seconds, not when its fit would have ended."""
+    training on: it ends within seconds, not when its fit would have ended (hours). The deadline
+    allows for a child still importing torch on a loaded machine (it watches from then on)."""
     script = tmp_path / "caller.py"
     script.write_text(
         "from tests.learner.test_train_process import TrainProcess, _model, _points\n"
@@ -157,7 +158,7 @@ def test_a_child_ends_when_its_caller_is_killed_mid_fit(tmp_path):
         assert _running(child)
         caller.kill()
         caller.wait(10)
-        deadline = time.monotonic() + 15
+        deadline = time.monotonic() + 60
         while _running(child) and time.monotonic() < deadline:
             time.sleep(0.1)
         assert not _running(child), "the child trains on after its caller died"
