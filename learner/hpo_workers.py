@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 import optuna
-import torch
 
 from learner.base import PhysicsBase
 from learner.features import FeatureSpec
@@ -25,6 +24,7 @@ from learner.hpo_lock import study_lock
 from learner.hpo_objective import cv_objective
 from learner.hpo_space import SearchSpace, learner_defaults
 from learner.hpo_study import make_study, open_storage, run_trials
+from learner.training import set_compute_threads
 
 
 def open_study(cfg: HpoConfig, storage: str | Path) -> optuna.Study:
@@ -90,7 +90,7 @@ def _work(
     deadline: float | None,
     threads: int,
 ) -> None:
-    torch.set_num_threads(threads)
+    set_compute_threads(threads)  # BLAS too, as the CLI and the daemon cap it
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     study = open_study(cfg, storage)
     left = None if deadline is None else max(0.0, deadline - time.monotonic())
