@@ -55,8 +55,10 @@ def test_the_child_trains_the_weights_the_caller_would(trainer):
     X, Y = _points(300, 0)
     here, there = _model(), _model()
     given = dict(X_val=X[:40], Y_val=Y[:40], max_epochs=15, lr=3e-4)
+    reports = []
     for fit in (dict(max_epochs=40), given, given | {"anneal": True}):
         a = here.fit(X[40:], Y[40:], **fit)
+        reports.append(a)
         b = there.fit(X[40:], Y[40:], **fit, trainer=trainer)
         assert _same_weights(here, there)
         assert (a.epochs, a.best_epoch, a.best_val_mse, a.val_mse_history) == (
@@ -66,6 +68,7 @@ def test_the_child_trains_the_weights_the_caller_would(trainer):
             b.val_mse_history,
         )
         np.testing.assert_array_equal(here.interval_scale, there.interval_scale)
+    assert reports[1].best_epoch < reports[1].epochs  # the validation path was taken
     assert a.final_lr == pytest.approx(0.0, abs=1e-12)  # the annealed fit ran as annealed
     assert trainer.trained == 3 and trainer.failures == 0
 
