@@ -6,7 +6,7 @@ random subset; every row runs the same seeds. Continual models identify their ba
 first points and again from their memory (:mod:`learner.continual_base`).
 
     .venv/bin/python bench/learner_memory.py [--data /tmp/paper.parquet] [--seeds 3]
-        [--memories 200,500,1000,2000] [--baselines reservoir,full,random,batch]
+        [--first-seed 0] [--memories 200,500,1000,2000] [--baselines reservoir,full,random,batch]
 """
 
 import argparse
@@ -73,14 +73,15 @@ def one_run(p, train, strategy: str, memory: int, seed: int) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--data", default="/tmp/paper.parquet")
-    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--seeds", type=int, default=3, help="how many seeds, from --first-seed")
+    ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--memories", default="200,500,1000,2000")
     ap.add_argument("--baselines", default="reservoir,full,random,batch")
     args = ap.parse_args()
     torch.set_num_threads(1)
     p = prepare(read_dataset(args.data), test_fraction=0.1, seed=0)
     train = np.sort(p.train)  # recording order
-    runs = [("max_error", int(m)) for m in args.memories.split(",")]
+    runs = [("max_error", int(m)) for m in args.memories.split(",") if m]
     baselines = {
         "reservoir": ("reservoir", 500),
         "full": ("full", len(train)),
@@ -90,7 +91,8 @@ def main() -> None:
     runs += [baselines[b] for b in args.baselines.split(",") if b]
     rows = []
     for strategy, memory in runs:
-        results = [one_run(p, train, strategy, memory, seed) for seed in range(args.seeds)]
+        seeds = range(args.first_seed, args.first_seed + args.seeds)
+        results = [one_run(p, train, strategy, memory, seed) for seed in seeds]
         means = [r["mean_mm"] for r in results]
         row = {
             "strategy": strategy,
