@@ -104,9 +104,9 @@ def main() -> None:
         "batch": ("batch", len(train)),
     }
     runs += [baselines[b] for b in args.baselines.split(",") if b]
-    rows, per_seed = [], {}
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
+    per_seed = {}
     for strategy, memory in runs:
-        seeds = range(args.first_seed, args.first_seed + args.seeds)
         results = [one_run(p, train, strategy, memory, seed) for seed in seeds]
         means = [r["mean_mm"] for r in results]
         per_seed[strategy, memory] = np.array(means)
@@ -119,7 +119,6 @@ def main() -> None:
         }
         if "wall_s" in results[0]:
             row["wall_s"] = float(np.mean([r["wall_s"] for r in results]))
-        rows.append(row)
         print(json.dumps(row), flush=True)
     if ("batch", len(train)) in per_seed:
         batch = per_seed["batch", len(train)]

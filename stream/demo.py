@@ -157,9 +157,9 @@ def run_demo(
     ``learner`` and ``period_s`` (s between visits) make short runs for tests; the default
     re-times the campaign to a visit every 0.6 s (0.3 s settled; 230,196 samples at 125 Hz joint
     sampling), published as fast as the pipeline takes them: about 50 s on two cores. The
-    learner then works through the batches queued behind its updates (the whole demo took 2 min
-    18 s, BENCHMARKS.md). ``serve`` also serves the live dashboard (``DashboardConfig`` ports;
-    its URL: ``stream.dashboard.viewer_url``).
+    learner then works through the batches queued behind its updates (the whole demo: 1 min 39 s
+    to 2 min 29 s on 2-core VMs, BENCHMARKS.md). ``serve`` also serves the live dashboard
+    (``DashboardConfig`` ports; its URL: ``stream.dashboard.viewer_url``).
     """
     if n < 2 * learner.continual.init:
         raise ConfigError(f"demo needs n >= {2 * learner.continual.init} points, got {n}")
