@@ -122,14 +122,14 @@ class PhysicsBase:
 
     def poses(self, spec: FeatureSpec, X: np.ndarray) -> np.ndarray:
         """Sensor poses ``T_0_S`` ``(N, 4, 4)`` in the data's base frame at raw features ``X``."""
-        T = perturbed_poses(self.model, _conditions(spec, X), self._blocks)
+        T = perturbed_poses(self.model, effect_conditions(spec, X), self._blocks)
         return self.T_0_B[None] @ T
 
     def error(self, spec: FeatureSpec, X: np.ndarray, nominal: RobotModel) -> np.ndarray:
         """The base's pose error ``(N, 6)`` (m, rad) against the ``nominal`` model."""
         if self.kind == "nominal":
             return np.zeros((np.shape(X)[0], 6))
-        T_nominal = perturbed_poses(nominal, _conditions(spec, X), [])
+        T_nominal = perturbed_poses(nominal, effect_conditions(spec, X), [])
         return pose_error(self.poses(spec, X), T_nominal)
 
     def frame_variance(
@@ -178,7 +178,7 @@ def measured_dataset(spec: FeatureSpec, X: np.ndarray, Y: np.ndarray) -> Dataset
     as a base-frame dataset: what calibration reads, rebuilt from a model's own arrays."""
     desc = spec.description
     X = np.asarray(X, dtype=float)
-    T = apply_error(perturbed_poses(RobotModel(desc), _conditions(spec, X), []), Y)
+    T = apply_error(perturbed_poses(RobotModel(desc), effect_conditions(spec, X), []), Y)
     xyz, quat = xyz_quat_from_transform(T)
     columns = {"t": np.arange(len(X), dtype=float)}
     columns |= {f"q{i}": X[:, i - 1] for i in range(1, desc.n_joints + 1)}
@@ -367,7 +367,7 @@ def check_same_robot(desc: RobotDescription, nominal: RobotDescription, what: st
         )
 
 
-def _conditions(spec: FeatureSpec, X: np.ndarray) -> Conditions:
+def effect_conditions(spec: FeatureSpec, X: np.ndarray) -> Conditions:
     """Effect conditions from raw features: joints and named temperatures (no time, no loads)."""
     X = np.asarray(X, dtype=float)
     n = spec.description.n_joints

@@ -13,7 +13,11 @@ the day's intervals: each pose as the base fitted without its fold misses it
 (:func:`checking_labels`), and whether the effects a source's ``robocal gap`` base brings hold on
 the day (:func:`keeps_effects`): UR10 A's, identified on its whole workspace, carry to B (A→B
 0.416 mm after 100 poses, against 0.448 mm from a geometric source); B's, fitted on its corner,
-miss A by 0.611 mm, and the folds drop them (0.443 mm). The program judges the day's start;
+miss A by 0.611 mm, and the folds drop them (0.443 mm). A base that brings no joint compliance
+has one tried beside the geometry (:func:`with_compliance`), kept only where the folds show it
+misses less: A→B from a geometric source 0.451 -> 0.407 mm after 100 poses, a random arm whose
+joints twist 0.109 -> 0.066 mm at the end of its day, the other arms unchanged (BENCHMARKS.md,
+"Joint compliance tried by a reference program"). The program judges the day's start;
 the day's held-out points weigh the effects it dropped again as its frames are refitted
 (:func:`day_frames`): a random arm whose source saw one corner got its gear terms back at 270
 points and ended its day at 0.078 mm, not 0.320 mm.
@@ -27,9 +31,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.stats import ttest_rel
 
+from kinematics.calibration import CalibrationConfig, prior_std
+from kinematics.effects.joint_compliance import JointCompliance, actuator_torque
 from kinematics.errors import IdentifiabilityError
+from kinematics.gap.model_file import EffectEntry
 from kinematics.model import RobotModel
-from learner.base import AUTO_MAX_CONDITION, PhysicsBase, refit_base
+from learner.base import AUTO_MAX_CONDITION, PhysicsBase, effect_conditions, refit_base
 from learner.carry import (
     MIN_DAY_POINTS,
     CarriedDay,
@@ -104,24 +111,54 @@ def carried_base(
     framed, moved = carried_frames(base, day.spec, day.X, day.Y, day.residual, priors)
     if not cfg.reference_program:
         return DayBase(framed, moved)
+    rigid, framed = framed, with_compliance(framed, day)
     why, checked = "", keep_effects is None and bool(framed.effects)
     if checked:
         keep_effects, why = keeps_effects(base, day, cfg)
     dropped = () if keep_effects is not False else tuple(e.name for e in framed.effects)
-    try:
-        fitted = day_fit(replace(framed, effects=()) if dropped else framed, day)
-    except IdentifiabilityError as exc:
-        note = f"{framed.note}; reference program: geometry kept, {exc}{why}"
-        return DayBase(replace(framed, note=note), moved)
+    added = framed is not rigid and not dropped
+    tries = [replace(framed, effects=())] if dropped else [framed, rigid][: 1 + added]
+    for start in tries:  # without the compliance added where it leaves the geometry unidentified
+        try:
+            fitted = day_fit(start, day)
+            break
+        except IdentifiabilityError as exc:
+            error = exc
+    else:
+        note = f"{rigid.note}; reference program: geometry kept, {error}{why}"
+        return DayBase(replace(rigid, note=note), moved)
     without = f" without the effects {', '.join(dropped)}" if dropped else ""
     note = (
-        f"{framed.note}; reference program: geometry fitted again on its {len(day.X)} points"
-        f"{without}, condition number {fitted.condition:.3g}{why}"
+        f"{framed.note}; reference program: geometry"
+        f"{' and joint compliance' if added and start is framed else ''} fitted again on its "
+        f"{len(day.X)} points{without}, condition number {fitted.condition:.3g}{why}"
     )
     aside = None  # where the folds dropped the effects, the base with them for the day to weigh
     if checked and dropped:
         aside = replace(carried_base(base, day, cfg, True).base, frame_sigma=None)
     return DayBase(replace(fitted, note=note, frame_sigma=None), moved, True, dropped, aside)
+
+
+def with_compliance(base: PhysicsBase, day: DayPoints) -> PhysicsBase:
+    """``base`` with a rigid ``joint_compliance`` among its effects for a reference program to
+    fit (each joint whose holding torque varies over the ``day``'s poses), where it has none and
+    the robot's link masses give torques; else ``base``. Every arm's joints twist under gravity;
+    a geometric source does not know it, and its folds drop it where it does not hold
+    (:func:`keeps_effects`). The entry's std is the calibration prior's."""
+    effect, cond = JointCompliance(), effect_conditions(day.spec, day.X)
+    if any(e.name == effect.name for e in base.effects) or effect.needs(base.model, cond):
+        return base
+    torque = actuator_torque(base.model, cond)
+    names = effect.parameter_names(base.description)
+    prior = prior_std(base.model, effect, CalibrationConfig().prior_mm)
+    varies = np.ptp(torque, axis=0) > 1e-6 * np.abs(torque).max(initial=0.0)
+    std = {n: float(s) for n, s, v in zip(names, prior, varies, strict=True) if v}
+    if not std:
+        return base
+    entry = EffectEntry(
+        name=effect.name, options=effect.options(), parameters=dict.fromkeys(names, 0.0), std=std
+    )
+    return replace(base, effects=(*base.effects, entry))
 
 
 def day_fit(framed: PhysicsBase, day: DayPoints) -> PhysicsBase:
@@ -148,7 +185,9 @@ def keeps_effects(
     error (m) where :func:`carried_base` on the other folds, with the effects and with the
     day's geometry alone, and the network's residual at the gain each leaves, miss it; the
     effects go only where geometry alone misses less at :data:`DROP_EFFECTS_P` (a source's
-    effects fitted on a corner of its workspace). Returns the answer and a note of both."""
+    effects fitted on a corner of its workspace). A compliance the program tries on a base
+    that brings none (:func:`with_compliance`) stays only where it misses less at the same
+    level: a new effect must earn its place. Returns the answer and a note of both."""
     n, misses = len(day.X), {}
     for keep in (True, False):
         miss = np.zeros(n)
@@ -159,12 +198,14 @@ def keeps_effects(
                 return True, ""  # the day's geometry alone is not identified: nothing to weigh
             miss[fold] = held_misses(start.base, rest, day.rows(fold))
         misses[keep] = miss
-    p = ttest_rel(misses[True], misses[False], alternative="greater").pvalue
+    tried = not base.effects  # only the compliance the program tries
+    p = ttest_rel(misses[True], misses[False], alternative="less" if tried else "greater").pvalue
     note = (
-        f" (its folds: {misses[True].mean() * 1e3:.3f} mm with the carried effects, "
+        f" (its folds: {misses[True].mean() * 1e3:.3f} mm with the "
+        f"{'compliance tried' if tried else 'carried effects'}, "
         f"{misses[False].mean() * 1e3:.3f} mm without, p = {p:.2g})"
     )
-    return not p < DROP_EFFECTS_P, note
+    return bool(p < DROP_EFFECTS_P) == tried, note
 
 
 def day_frames(

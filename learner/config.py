@@ -271,7 +271,9 @@ class ContinualConfig:
     spread over the workspace (``robocal data reference-poses``), so the base's geometry is
     fitted again on them too (:func:`learner.carry_base.carried_base`) and its folds check
     the day's intervals (:func:`learner.carry_base.checking_labels`) and whether the effects
-    the model's base brings hold on the day (:func:`learner.carry_base.keeps_effects`).
+    the model's base brings, or the joint compliance it tries where the base has none
+    (:func:`learner.carry_base.with_compliance`), hold on the day
+    (:func:`learner.carry_base.keeps_effects`).
     ``aci_rate`` is the step of the adaptive conformal interval scale per new point outside
     (or inside) the ``aci_level`` interval, in log units (0 turns it off; it never narrows
     the intervals below the held-out calibration, :mod:`learner.conformal`).
