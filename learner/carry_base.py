@@ -188,17 +188,16 @@ def keeps_effects(
     effects fitted on a corner of its workspace). A compliance the program tries on a base
     that brings none (:func:`with_compliance`) stays only where it misses less at the same
     level: a new effect must earn its place. Returns the answer and a note of both."""
-    n, misses = len(day.X), {}
+    n, misses, tried = len(day.X), {}, not base.effects  # tried: only the compliance tried
     for keep in (True, False):
         miss = np.zeros(n)
         for fold in np.array_split(np.arange(n), min(folds, n)):
             rest = day.rows(np.setdiff1d(np.arange(n), fold))
             start = carried_base(base, rest, cfg, keep)
             if not (keep or start.refitted):
-                return True, ""  # the day's geometry alone is not identified: nothing to weigh
+                return not tried, ""  # the day's geometry alone is not identified: no weighing
             miss[fold] = held_misses(start.base, rest, day.rows(fold))
         misses[keep] = miss
-    tried = not base.effects  # only the compliance the program tries
     p = ttest_rel(misses[True], misses[False], alternative="less" if tried else "greater").pvalue
     note = (
         f" (its folds: {misses[True].mean() * 1e3:.3f} mm with the "
