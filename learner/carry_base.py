@@ -140,13 +140,14 @@ def carried_base(
 
 
 def with_compliance(base: PhysicsBase, day: DayPoints) -> PhysicsBase:
-    """``base`` with a rigid ``joint_compliance`` among its effects for a reference program to
-    fit (each joint whose holding torque varies over the ``day``'s poses), where it has none and
-    the robot's link masses give torques; else ``base``. Every arm's joints twist under gravity;
-    a geometric source does not know it, and its folds drop it where it does not hold
-    (:func:`keeps_effects`). The entry's std is the calibration prior's."""
+    """``base`` with a rigid ``joint_compliance`` as its one effect for a reference program to
+    fit (each joint whose holding torque varies over the ``day``'s poses), where it brings no
+    effects and the robot's link masses give torques; else ``base``. Every arm's joints twist
+    under gravity; a geometric source does not know it, and its folds keep it only where it
+    holds (:func:`keeps_effects`; a base with effects of its own is judged on those alone). The
+    entry's std is the calibration prior's."""
     effect, cond = JointCompliance(), effect_conditions(day.spec, day.X)
-    if any(e.name == effect.name for e in base.effects) or effect.needs(base.model, cond):
+    if base.effects or effect.needs(base.model, cond):
         return base
     torque = actuator_torque(base.model, cond)
     names = effect.parameter_names(base.description)
@@ -188,7 +189,7 @@ def keeps_effects(
     effects fitted on a corner of its workspace). A compliance the program tries on a base
     that brings none (:func:`with_compliance`) stays only where it misses less at the same
     level: a new effect must earn its place. Returns the answer and a note of both."""
-    n, misses, tried = len(day.X), {}, not base.effects  # tried: only the compliance tried
+    n, misses, tried = len(day.X), {}, not base.effects  # tried: the compliance alone
     for keep in (True, False):
         miss = np.zeros(n)
         for fold in np.array_split(np.arange(n), min(folds, n)):

@@ -114,7 +114,7 @@ def test_a_reference_program_fits_the_days_geometry_where_its_points_identify_it
         before, _ = carry_onto(day, tracker, program, reference_program=reference)
         left[reference] = np.linalg.norm(longer[rest] - before[rest] - change, axis=1).mean()
         if reference:
-            assert "geometry and joint compliance fitted again on its 60 points" in note
+            assert "reference program: geometry and joint compliance fitted again on its 60" in note
     assert np.linalg.norm(change, axis=1).mean() > 1e-3
     assert left[True] < left[False] / 3
 
