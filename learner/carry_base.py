@@ -106,7 +106,10 @@ def carried_base(
     as they came, unless the program's folds show that the day's geometry alone misses less
     (:func:`keeps_effects`; ``keep_effects`` decides instead). The note says which; effects
     the folds dropped are set aside (``DayBase.aside``) for the day's later points to weigh
-    again (:func:`day_frames`)."""
+    again (:func:`day_frames`). Where the points cannot identify the effects beside the
+    geometry, the geometry stays as it came: fitted with the effects held, UR10 A→B from gap
+    files went 0.427 -> 0.358 mm but B→A 0.442 -> 0.588 mm, B's corner-fitted gear terms passing
+    the folds of a program from A's first hours (BENCHMARKS.md, "Measured, not kept")."""
     priors = FramePriors.of(cfg)
     framed, moved = carried_frames(base, day.spec, day.X, day.Y, day.residual, priors)
     if not cfg.reference_program:
