@@ -120,7 +120,7 @@ def carried_base(
         keep_effects, why = keeps_effects(base, day, cfg)
     dropped = () if keep_effects is not False else tuple(e.name for e in framed.effects)
     added = framed is not rigid and not dropped
-    tries = [replace(framed, effects=())] if dropped else [framed, rigid][: 1 + added]
+    tries = [replace(framed, effects=())] if dropped else [framed, rigid] if added else [framed]
     for start in tries:  # without the compliance added where it leaves the geometry unidentified
         try:
             fitted = day_fit(start, day)
