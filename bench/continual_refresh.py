@@ -1,23 +1,29 @@
 """Continual learning on a stream in recorded order, with and without a fresh network trained
 on the memory as the stream grows (``ContinualConfig.refresh_growth``, :mod:`learner.refresh`),
 against a batch model of the same training split: test mean (mm), 90 % coverage, wall time.
+``--arms`` adds random arms of ``sim_sources.unseen`` (2,000 points, a random geometric error
+of 20 noise floors and one hidden effect of 8, as ``learner_unseen.py`` takes them in turn).
 
     .venv/bin/python bench/continual_refresh.py --data /tmp/b.parquet /tmp/a.parquet \
-        --seeds 0 1 2 [--growths 0 2] [--batch]
+        --seeds 0 1 2 [--growths 0 2] [--batch] [--arms 501 502 503 504]
 
 ``robocal continual --data D --refresh-growth G --json`` runs one cell of the table.
 """
 
 import argparse
 import json
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
+from learner_unseen import EFFECTS
 
 from kinematics.dataset import read_dataset
 from learner.config import ContinualConfig
 from learner.workflow import continual_on_dataset, train_on_dataset
+from sim_sources.unseen import UnseenSpec, write_unseen
 
 
 def stream(path: str, growth: float, seed: int) -> dict:
@@ -43,28 +49,55 @@ def batch(path: str, seed: int) -> dict:
     }
 
 
+def arm_campaign(seed: int, folder: Path) -> str:
+    """Random arm ``seed``'s campaign of 2,000 points, written into ``folder``."""
+    spec = UnseenSpec(
+        seed=seed,
+        n_points=2000,
+        hidden=EFFECTS[seed % len(EFFECTS)],
+        magnitude=8.0,
+        also=(("geometric", 20.0),),
+    )
+    return str(write_unseen(spec, folder / f"arm{seed}")[0])
+
+
+def compared(
+    path: str, label: str, growths: list[float], seeds: list[int], with_batch: bool
+) -> list[dict]:
+    """One dataset's rows, named ``label``: each growth, and the batch model, averaged over
+    ``seeds``."""
+    names = [f"refresh {g:g}" for g in growths] + (["batch"] if with_batch else [])
+    rows = []
+    for name, growth in zip(names, [*growths, None], strict=False):
+        if growth is None:
+            per_seed = [batch(path, s) for s in seeds]
+        else:
+            per_seed = [stream(path, growth, s) for s in seeds]
+        row = {"data": label, "model": name, "seeds": seeds}
+        for key in ("mean_mm", "coverage_90", "wall_s"):
+            row[key] = float(np.mean([r[key] for r in per_seed]))
+        row["per_seed_mm"] = [round(r["mean_mm"], 4) for r in per_seed]
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", nargs="+", required=True)
+    ap.add_argument("--data", nargs="*", default=[])
+    ap.add_argument("--arms", nargs="*", type=int, default=[], help="random arms' seeds")
     ap.add_argument("--seeds", nargs="+", type=int, default=[0])
     ap.add_argument("--growths", nargs="+", type=float, default=[0.0, 2.0])
     ap.add_argument("--batch", action="store_true", help="also the batch model of each split")
     args = ap.parse_args()
     torch.set_num_threads(1)
-    rows = []
-    for path in args.data:
-        names = [f"refresh {g:g}" for g in args.growths] + (["batch"] if args.batch else [])
-        for name, growth in zip(names, [*args.growths, None], strict=False):
-            if growth is None:
-                per_seed = [batch(path, s) for s in args.seeds]
-            else:
-                per_seed = [stream(path, growth, s) for s in args.seeds]
-            row = {"data": path, "model": name, "seeds": args.seeds}
-            for key in ("mean_mm", "coverage_90", "wall_s"):
-                row[key] = float(np.mean([r[key] for r in per_seed]))
-            row["per_seed_mm"] = [round(r["mean_mm"], 4) for r in per_seed]
-            rows.append(row)
-            print(json.dumps(row), flush=True)
+    rows: list[dict] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        cases = {path: path for path in args.data}
+        for seed in args.arms:
+            cases[arm_campaign(seed, Path(tmp))] = f"arm {seed} ({EFFECTS[seed % len(EFFECTS)]})"
+        for path, label in cases.items():
+            rows += compared(path, label, args.growths, args.seeds, args.batch)
     print("| data | model | mean mm (per seed) | 90 % coverage | wall s |")
     print("|---|---|---|---|---|")
     for r in rows:
