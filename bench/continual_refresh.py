@@ -18,12 +18,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from learner_unseen import EFFECTS
+from learner_unseen import arm_spec
 
 from kinematics.dataset import read_dataset
 from learner.config import ContinualConfig
 from learner.workflow import continual_on_dataset, train_on_dataset
-from sim_sources.unseen import UnseenSpec, write_unseen
+from sim_sources.unseen import write_unseen
 
 
 def stream(path: str, growth: float, seed: int) -> dict:
@@ -49,16 +49,11 @@ def batch(path: str, seed: int) -> dict:
     }
 
 
-def arm_campaign(seed: int, folder: Path) -> str:
-    """Random arm ``seed``'s campaign of 2,000 points, written into ``folder``."""
-    spec = UnseenSpec(
-        seed=seed,
-        n_points=2000,
-        hidden=EFFECTS[seed % len(EFFECTS)],
-        magnitude=8.0,
-        also=(("geometric", 20.0),),
-    )
-    return str(write_unseen(spec, folder / f"arm{seed}")[0])
+def arm_campaign(seed: int, folder: Path) -> tuple[str, str]:
+    """Random arm ``seed``'s campaign of 2,000 points, written into ``folder``: its path and a
+    label naming its hidden effect."""
+    spec = arm_spec(seed, 2000)
+    return str(write_unseen(spec, folder / f"arm{seed}")[0]), f"arm {seed} ({spec.hidden})"
 
 
 def compared(
@@ -93,10 +88,9 @@ def main() -> None:
     torch.set_num_threads(1)
     rows: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:
-        cases = {path: path for path in args.data}
-        for seed in args.arms:
-            cases[arm_campaign(seed, Path(tmp))] = f"arm {seed} ({EFFECTS[seed % len(EFFECTS)]})"
-        for path, label in cases.items():
+        cases = [(path, path) for path in args.data]
+        cases += [arm_campaign(seed, Path(tmp)) for seed in args.arms]
+        for path, label in cases:
             rows += compared(path, label, args.growths, args.seeds, args.batch)
     print("| data | model | mean mm (per seed) | 90 % coverage | wall s |")
     print("|---|---|---|---|---|")

@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from learner_unseen import arm_spec
 
 from kinematics.dataset import Dataset, read_dataset, write_dataset
 from kinematics.frames import reframed
@@ -52,10 +53,9 @@ from learner.workflow import (
     prepare,
     train_on_dataset,
 )
-from sim_sources.unseen import UnseenSpec, write_unseen
+from sim_sources.unseen import write_unseen
 from stream.reports.learner import write_trained
 
-EFFECTS = ("joint_compliance", "gear_periodic", "thermal_expansion", "joint_coupling")
 TRACKER_MOVE = transform_from_xyz_rpy([2e-3, -1e-3, 0.5e-3], [0.0, 1e-3, 2e-3])
 TOOL_MOVE = transform_from_xyz_rpy([0.0, 1e-3, 0.0], [1e-3, 0.0, 0.0])
 #: ContinualConfig fields changed from its defaults, by setting.
@@ -83,14 +83,7 @@ def moved_days(seed: int, folder: Path, corner: bool = False) -> tuple[Path, Pat
     day1, day2 = root / "day1.parquet", root / "day2.parquet"
     if day2.is_file():
         return day1, day2
-    spec = UnseenSpec(
-        seed=seed,
-        n_points=1200,
-        hidden=EFFECTS[seed % 4],
-        magnitude=8.0,
-        also=(("geometric", 20.0),),
-    )
-    ds = read_dataset(write_unseen(spec, root)[0])
+    ds = read_dataset(write_unseen(arm_spec(seed, 1200), root)[0])
     t, cut = ds.table, ds.table.q1.median()
     first = t.q1 < (t.q1.quantile(CORNER) if corner else cut)
     write_dataset(Dataset(t[first].reset_index(drop=True), ds.meta), day1)
@@ -192,7 +185,10 @@ def main() -> None:
         folder = Path(args.cache or tmp)
         folder.mkdir(parents=True, exist_ok=True)
         corner = args.day1 == "corner"
-        cases = {f"arm {s} ({EFFECTS[s % 4]})": moved_days(s, folder, corner) for s in args.arms}
+        cases = {
+            f"arm {s} ({arm_spec(s, 1200).hidden})": moved_days(s, folder, corner)
+            for s in args.arms
+        }
         if args.day2 != "moved":
             reference = args.day2 == "reference"
             init = REFERENCE_POSES if reference else ContinualConfig().init

@@ -41,21 +41,26 @@ MODELS = (
 CANDIDATES = ("base_plus_residual", "gap_base_plus_residual")
 
 
-def arm(seed: int, n_points: int, geometric: float, effect: float, epochs: int) -> dict:
-    """One random arm's campaign and the models' test statistics on it."""
-    hidden = EFFECTS[seed % len(EFFECTS)]
-    spec = UnseenSpec(
+def arm_spec(seed: int, n_points: int, geometric: float = 20.0, effect: float = 8.0) -> UnseenSpec:
+    """Random arm ``seed``: a geometric error of ``geometric`` noise floors and the hidden
+    effect of :data:`EFFECTS` its seed picks, of ``effect`` noise floors (the benches' arms)."""
+    return UnseenSpec(
         seed=seed,
         n_points=n_points,
-        hidden=hidden,
+        hidden=EFFECTS[seed % len(EFFECTS)],
         magnitude=effect,
         also=(("geometric", geometric),),
     )
+
+
+def arm(seed: int, n_points: int, geometric: float, effect: float, epochs: int) -> dict:
+    """One random arm's campaign and the models' test statistics on it."""
+    spec = arm_spec(seed, n_points, geometric, effect)
     with tempfile.TemporaryDirectory() as folder:
         path, desc, truth = write_unseen(spec, folder)
         t0 = time.perf_counter()
         out = compare(read_dataset(path), [seed], epochs, mlp_inputs="all")
-    about = {"arm": seed, "n_points": n_points, "effect": hidden, "n_axes": desc.n_joints}
+    about = {"arm": seed, "n_points": n_points, "effect": spec.hidden, "n_axes": desc.n_joints}
     about |= {"thermometers": len(truth["thermometers"]), "secondary": truth["secondary"]}
     return about | out | {"wall_s": time.perf_counter() - t0}
 
