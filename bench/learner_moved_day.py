@@ -56,6 +56,8 @@ from learner.workflow import (
 from sim_sources.unseen import write_unseen
 from stream.reports.learner import write_trained
 
+#: Points of a random arm's campaign, split into its two days.
+ARM_POINTS = 1200
 TRACKER_MOVE = transform_from_xyz_rpy([2e-3, -1e-3, 0.5e-3], [0.0, 1e-3, 2e-3])
 TOOL_MOVE = transform_from_xyz_rpy([0.0, 1e-3, 0.0], [1e-3, 0.0, 0.0])
 #: ContinualConfig fields changed from its defaults, by setting.
@@ -83,7 +85,7 @@ def moved_days(seed: int, folder: Path, corner: bool = False) -> tuple[Path, Pat
     day1, day2 = root / "day1.parquet", root / "day2.parquet"
     if day2.is_file():
         return day1, day2
-    ds = read_dataset(write_unseen(arm_spec(seed, 1200), root)[0])
+    ds = read_dataset(write_unseen(arm_spec(seed, ARM_POINTS), root)[0])
     t, cut = ds.table, ds.table.q1.median()
     first = t.q1 < (t.q1.quantile(CORNER) if corner else cut)
     write_dataset(Dataset(t[first].reset_index(drop=True), ds.meta), day1)
@@ -186,7 +188,7 @@ def main() -> None:
         folder.mkdir(parents=True, exist_ok=True)
         corner = args.day1 == "corner"
         cases = {
-            f"arm {s} ({arm_spec(s, 1200).hidden})": moved_days(s, folder, corner)
+            f"arm {s} ({arm_spec(s, ARM_POINTS).hidden})": moved_days(s, folder, corner)
             for s in args.arms
         }
         if args.day2 != "moved":
