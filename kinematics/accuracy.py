@@ -8,14 +8,12 @@ pose in the base frame (``Dataset.measured_poses_base``) and the nominal FK with
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from kinematics.dataset import Dataset, read_dataset, validate
+from kinematics.dataset import Dataset
 from kinematics.description import RobotDescription
 from kinematics.error_stats import ErrorStats
-from kinematics.identity import description_for
 from kinematics.model import RobotModel
 from kinematics.transforms import ARCMIN_PER_RAD, pose_error, rotation_angle
 
@@ -47,15 +45,3 @@ def accuracy_summary(ds: Dataset, desc: RobotDescription) -> AccuracySummary:
     dR = measured[:, :3, :3] @ np.swapaxes(nominal[:, :3, :3], 1, 2)
     arcmin = ARCMIN_PER_RAD * rotation_angle(dR)
     return AccuracySummary.of(mm, arcmin, errors_mm=mm, errors_arcmin=arcmin, robot=desc.name)
-
-
-def summarize_file(path: str | Path, *, robot: str | None = None) -> AccuracySummary:
-    """Read a dataset, check it against its robot's limits and summarise its accuracy.
-
-    ``robot`` (a shipped name or TOML path) defaults to the dataset's ``meta.robot``; either
-    is matched to the dataset by :func:`kinematics.identity.description_for`.
-    """
-    ds = read_dataset(path)
-    desc = description_for(ds, robot, path)
-    validate(ds, str(path), desc.limits_rad)
-    return accuracy_summary(ds, desc)

@@ -149,6 +149,8 @@ def validate(ds: Dataset, source: str = "dataset", limits_rad: np.ndarray | None
         missing.append("q1")
     if missing:
         raise DatasetError(f"{source}: missing column(s) {', '.join(missing)}")
+    if t.empty:
+        raise DatasetError(f"{source}: no rows")
     sec = secondary_columns(t)
     if sec and len(sec) != len(qcols):
         raise DatasetError(f"{source}: {len(sec)} secondary columns qs* for {len(qcols)} joints")

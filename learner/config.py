@@ -18,6 +18,7 @@ import math
 from dataclasses import dataclass, field
 
 from kinematics.errors import ConfigError
+from kinematics.outliers import GROSS_THRESHOLD
 
 ACTIVATIONS = ("elu", "relu", "gelu")
 STRATEGIES = ("max_error", "naive", "reservoir", "full")
@@ -196,7 +197,7 @@ class QuarantineConfig:
     threshold: float = 25.0
     interval_threshold: float = 4.0
     label_threshold: float = 10.0
-    warmup_threshold: float = 100.0
+    warmup_threshold: float = GROSS_THRESHOLD
     history: int = 500
     release_after: int = 100
     publish_tolerance: float = 0.1

@@ -47,11 +47,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from kinematics.outliers import robust_distance
 from learner.config import QuarantineConfig
 from learner.model import ErrorModel
-
-#: Normal-consistency factor of the median absolute deviation.
-MAD_TO_STD = 1.4826
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -96,14 +94,6 @@ def state_from_dict(d: dict) -> QuarantineState:
         quarantined=int(meta.get("quarantined", 0)),
         released=int(meta.get("released", 0)),
     )
-
-
-def robust_distance(r: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """Per row of ``r`` (N, 6), the Euclidean norm over components of its distance to the
-    median of ``reference`` (R, 6) in units of the reference's normal-scaled MAD."""
-    center = np.median(reference, axis=0)
-    spread = MAD_TO_STD * np.median(np.abs(reference - center), axis=0)
-    return np.linalg.norm((r - center) / np.maximum(spread, 1e-12), axis=1)
 
 
 def screen(

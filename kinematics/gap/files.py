@@ -9,17 +9,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 from kinematics.calibration import CalibrationConfig, CalibrationResult, calibrate
-from kinematics.dataset import Dataset, read_dataset
-from kinematics.description import RobotDescription
 from kinematics.gap.workflow import GapConfig, GapResult, run_gap
-from kinematics.identity import description_for
-
-
-def load_inputs(data: str | Path, robot: str | Path | None) -> tuple[RobotDescription, Dataset]:
-    """The dataset at ``data`` and the description ``robot`` (default: the dataset's robot),
-    matched by :func:`kinematics.identity.description_for`."""
-    ds = read_dataset(data)
-    return description_for(ds, robot, data), ds
+from kinematics.series import read_series
 
 
 def gap_from_files(
@@ -27,9 +18,11 @@ def gap_from_files(
     robot: str | Path | None = None,
     config: GapConfig | None = None,
     progress: Callable[[str], None] | None = None,
+    notify: Callable[[str], None] | None = None,
 ) -> GapResult:
-    """Run the gap workflow on a dataset file."""
-    desc, ds = load_inputs(data, robot)
+    """Run the gap workflow on a dataset file (read by :func:`kinematics.series.read_series`,
+    whose dropped rows ``notify`` hears of)."""
+    desc, ds = read_series(data, robot, notify)
     return run_gap(desc, ds, config, progress)
 
 
@@ -37,10 +30,11 @@ def calibrate_from_files(
     data: str | Path,
     robot: str | Path | None = None,
     config: CalibrationConfig | None = None,
+    notify: Callable[[str], None] | None = None,
 ) -> CalibrationResult:
-    """Calibrate from a dataset file."""
-    desc, ds = load_inputs(data, robot)
+    """Calibrate from a dataset file (read as :func:`gap_from_files` reads it)."""
+    desc, ds = read_series(data, robot, notify)
     return calibrate(desc, ds, config)
 
 
-__all__ = ["calibrate_from_files", "gap_from_files", "load_inputs"]
+__all__ = ["calibrate_from_files", "gap_from_files"]

@@ -9,10 +9,13 @@ import os
 import sys
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from kinematics.errors import CLIUsageError  # noqa: F401 - the commands raise it from here
 from learner.config import BASE_KINDS, DEFAULT_BASE
+
+if TYPE_CHECKING:
+    from kinematics.dataset import Dataset
 
 
 class Command(abc.ABC):
@@ -63,6 +66,19 @@ def add_data_argument(parser: argparse.ArgumentParser, robot: bool = False) -> N
     parser.add_argument("--data", required=True, help="dataset file (.parquet or .csv)")
     if robot:
         parser.add_argument("--robot", default=None, help="robot description (default: meta)")
+
+
+def notice(message: str) -> None:
+    """One line on stderr about what a command dropped from its input (not an error)."""
+    print(f"robocal: {message}", file=sys.stderr)
+
+
+def read_data(args: argparse.Namespace) -> Dataset:
+    """The ``--data`` series (against ``--robot`` where the command has it), read by
+    :func:`kinematics.series.read_series`: the rows it drops are named on stderr."""
+    from kinematics.series import read_series
+
+    return read_series(args.data, getattr(args, "robot", None), notice)[1]
 
 
 def add_json_flag(parser: argparse.ArgumentParser) -> None:

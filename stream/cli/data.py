@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from stream.cli._base import Command, add_json_flag, emit
+from stream.cli._base import Command, add_json_flag, emit, notice
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -95,9 +95,11 @@ class DataSummary(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
-        from kinematics.accuracy import summarize_file
+        from kinematics.accuracy import accuracy_summary
+        from kinematics.series import read_series
 
-        s = summarize_file(args.file, robot=args.robot)
+        desc, ds = read_series(args.file, args.robot, notice)
+        s = accuracy_summary(ds, desc)
         if args.hist is not None:
             from stream.reports.plots import save_histogram
 

@@ -10,7 +10,7 @@ import argparse
 import sys
 from typing import TYPE_CHECKING
 
-from stream.cli._base import Command, add_data_argument, add_json_flag, emit
+from stream.cli._base import Command, add_data_argument, add_json_flag, emit, notice
 
 if TYPE_CHECKING:
     from kinematics.calibration import CalibrationConfig
@@ -73,7 +73,7 @@ class Gap(Command):
                 bar.set_postfix_str(message)
                 bar.update()
 
-            result = gap_from_files(args.data, args.robot, config, progress)
+            result = gap_from_files(args.data, args.robot, config, progress, notice)
         files = None
         if args.report is not None:
             from stream.reports.gap import write_report
@@ -120,7 +120,7 @@ class Calibrate(Command):
         from kinematics.gap.files import calibrate_from_files
 
         config = calibration_config(args, rank_rtol=args.rank_rtol)
-        result = calibrate_from_files(args.data, args.robot, config)
+        result = calibrate_from_files(args.data, args.robot, config, notice)
         if args.out is not None:
             from stream.reports.gap import write_calibrated_model
 

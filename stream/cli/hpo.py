@@ -13,7 +13,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from learner.hpo_config import TRIAL_WORK, HpoConfig, default_threads
-from stream.cli._base import CLIUsageError, Command, add_base_argument, add_json_flag, emit
+from stream.cli._base import (
+    CLIUsageError,
+    Command,
+    add_base_argument,
+    add_json_flag,
+    emit,
+    read_data,
+)
 
 if TYPE_CHECKING:
     from learner.hpo_study import Progress
@@ -75,7 +82,6 @@ class HpoCommand(Command):
         import torch
         from tqdm import tqdm
 
-        from kinematics.dataset import read_dataset
         from learner.hpo import run_hpo
         from learner.hpo_dashboard import start_dashboard
         from learner.hpo_space import SearchSpace, load_space
@@ -107,7 +113,7 @@ class HpoCommand(Command):
             url = start_dashboard(storage, port=args.dashboard_port)
             print(f"optuna-dashboard on {url}", file=sys.stderr)
         torch.set_num_threads(args.threads or default_threads(args.workers))
-        ds = read_dataset(args.data)
+        ds = read_data(args)
         optuna.logging.set_verbosity(optuna.logging.WARNING)  # the bar shows progress
         with tqdm(total=cfg.trials, desc="hpo trials", file=sys.stderr, unit="trial") as bar:
 

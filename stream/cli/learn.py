@@ -29,6 +29,7 @@ from stream.cli._base import (
     add_data_argument,
     add_json_flag,
     emit,
+    read_data,
 )
 
 if TYPE_CHECKING:
@@ -72,12 +73,11 @@ class Train(Command):
     def take_action(self, args: argparse.Namespace) -> int:
         from tqdm import tqdm
 
-        from kinematics.dataset import read_dataset
         from learner.carry import position_factor
         from learner.workflow import train_on_dataset
         from stream.reports.learner import write_trained
 
-        ds = read_dataset(args.data)
+        ds = read_data(args)
         cfg = TrainConfig(
             seed=args.seed, max_epochs=args.max_epochs, drift_fraction=args.drift_fraction
         )
@@ -174,7 +174,6 @@ class Continual(Command):
     def take_action(self, args: argparse.Namespace) -> int:
         from tqdm import tqdm
 
-        from kinematics.dataset import read_dataset
         from learner.continual import load_learner
         from learner.continual_records import prequential
         from learner.workflow import continual_on_dataset
@@ -183,7 +182,7 @@ class Continual(Command):
         if args.start is None and (args.new_setup or args.reference_program):
             flag = "--new-setup" if args.new_setup else "--reference-program"
             raise CLIUsageError(f"{flag} describes a day carried from a model: give --from MODEL")
-        ds = read_dataset(args.data)
+        ds = read_data(args)
         options = {n: getattr(args, n) for n in _CONTINUAL_OPTIONS}
         cfg = ContinualConfig(
             **options,
@@ -262,13 +261,12 @@ class Evaluate(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
-        from kinematics.dataset import read_dataset
         from learner.metrics import accuracy_report, envelope_report
         from learner.snapshot import load_snapshot
         from learner.workflow import evaluation_points
 
         model = load_snapshot(args.model)
-        X, Y = evaluation_points(model, read_dataset(args.data))
+        X, Y = evaluation_points(model, read_data(args))
         report = accuracy_report(model, X, Y).to_dict()
         report["envelope"] = envelope = envelope_report(model, X, Y)
         text = _report_text(f"{args.data} ({report['n']} points)", report)
@@ -302,11 +300,10 @@ class ExperimentPaper(Command):
     def take_action(self, args: argparse.Namespace) -> int:
         from tqdm import tqdm
 
-        from kinematics.dataset import read_dataset
         from learner.experiment import StudyConfig, run_paper_study
         from stream.reports.learner import write_study
 
-        ds = read_dataset(args.data)
+        ds = read_data(args)
         Path(args.out).mkdir(parents=True, exist_ok=True)  # a bad folder fails before the runs
         cfg = StudyConfig.quick(seed=args.seed) if args.quick else StudyConfig(seed=args.seed)
         with tqdm(total=cfg.n_runs, desc="experiment", unit="run", file=sys.stderr) as bar:

@@ -7,11 +7,12 @@ import pandas as pd
 import pytest
 from scipy.spatial.transform import Rotation
 
-from kinematics.accuracy import accuracy_summary, summarize_file
+from kinematics.accuracy import accuracy_summary
 from kinematics.dataset import Dataset, DatasetMeta, write_dataset
 from kinematics.description import load_description
 from kinematics.errors import DatasetError, DescriptionError
 from kinematics.model import RobotModel
+from kinematics.series import read_series
 from kinematics.transforms import transform_from_xyz_rpy, xyz_quat_from_transform
 
 T_W_0 = transform_from_xyz_rpy([2.0, -1.0, -1.0], [0.0, 0.0, 0.4])
@@ -67,19 +68,25 @@ def test_tool_from_description_when_meta_has_none():
     assert s.mean_mm == pytest.approx(100.0, abs=1e-6)
 
 
-def test_summarize_file_checks_limits_and_robot(tmp_path):
+def summarised(path, robot=None):
+    """The summary `robocal data summary` prints of a file."""
+    desc, ds = read_series(path, robot)
+    return accuracy_summary(ds, desc)
+
+
+def test_a_series_summarised_is_checked_for_limits_and_robot(tmp_path):
     ds = make_dataset(np.full((20, 3), 1e-3), 0.0)
     path = write_dataset(ds, tmp_path / "d.parquet")
-    s = summarize_file(path)
+    s = summarised(path)
     assert s.mean_mm == pytest.approx(np.sqrt(3), abs=1e-9) and s.robot == "ur10"
     with pytest.raises(DescriptionError, match="unknown robot 'nope'"):
-        summarize_file(path, robot="nope")
+        summarised(path, robot="nope")
     # Another robot's description is refused by the one identity rule (kinematics/identity.py).
     with pytest.raises(DatasetError, match="dataset is of robot 'ur10', description is 'fanuc"):
-        summarize_file(path, robot="fanuc_m900ib700")
+        summarised(path, robot="fanuc_m900ib700")
     # Said to be a Fanuc, the UR10's joint angles break J2's limits: named by row and column.
     fanuc = write_dataset(
         Dataset(ds.table, replace(ds.meta, robot="fanuc_m900ib700")), tmp_path / "f.parquet"
     )
     with pytest.raises(DatasetError, match=r"row \d+, column 'q\d': .* outside the joint limits"):
-        summarize_file(fanuc)
+        summarised(fanuc)

@@ -111,6 +111,7 @@ def set_cell(row, col, value):
         (set_cell(3, "temp_j2", np.inf), "row 3, column 'temp_j2': value is not a finite"),
         (set_cell(5, "qx", 2.0), "row 5: quaternion norm .*, expected 1"),
         (lambda t: t.drop(columns=["qs6"]), "5 secondary columns qs\\* for 6 joints"),
+        (lambda t: t.iloc[:0], ": no rows"),
     ],
 )
 def test_bad_files_name_row_and_column(tmp_path, edit, match):
