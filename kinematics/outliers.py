@@ -28,18 +28,23 @@ MAD_TO_STD = 1.4826
 GROSS_THRESHOLD = 100.0
 #: More than this share of rows past the threshold is a change of set-up: nothing is dropped.
 MAX_GROSS_SHARE = 0.05
+#: The least spread (m, rad) a robust unit stands for: about a laser tracker's noise (10 µm, 2
+#: arcsec). Errors spread less (an exact simulation) are as alike as a tracker can tell them.
+TRACKER_NOISE = 1e-5
 
 
-def robust_distance(r: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """Per row of ``r`` (N, 6), the Euclidean norm over components of its distance to the
-    median of ``reference`` (R, 6) in units of the reference's normal-scaled MAD."""
+def robust_distance(r: np.ndarray, reference: np.ndarray, floor: float = 1e-12) -> np.ndarray:
+    """Per row of ``r`` (N, k), the Euclidean norm over components of its distance to the
+    median of ``reference`` (R, k) in units of the reference's normal-scaled MAD (at least
+    ``floor``, in the components' units)."""
     center = np.median(reference, axis=0)
     spread = MAD_TO_STD * np.median(np.abs(reference - center), axis=0)
-    return np.linalg.norm((r - center) / np.maximum(spread, 1e-12), axis=1)
+    return np.linalg.norm((r - center) / np.maximum(spread, floor), axis=1)
 
 
 def gross_outliers(errors: np.ndarray, threshold: float = GROSS_THRESHOLD) -> np.ndarray:
-    """Rows of ``errors`` (N, 6; m and rad) more than ``threshold`` robust units from the
-    series' own; none when more than ``MAX_GROSS_SHARE`` of the rows are."""
-    far = np.flatnonzero(robust_distance(errors, errors) > threshold)
+    """Rows of ``errors`` (N, k; m and rad) more than ``threshold`` robust units from the
+    series' own, a spread below ``TRACKER_NOISE`` counted as that; none when more than
+    ``MAX_GROSS_SHARE`` of the rows are."""
+    far = np.flatnonzero(robust_distance(errors, errors, TRACKER_NOISE) > threshold)
     return far if len(far) <= MAX_GROSS_SHARE * len(errors) else far[:0]

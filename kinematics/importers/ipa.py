@@ -40,7 +40,7 @@ from kinematics.dataset import (
 )
 from kinematics.description import load_description
 from kinematics.errors import DatasetError
-from kinematics.frames import FrameFit, fit_frames
+from kinematics.frames import FrameFit, fit_frames, fit_frames_screened
 from kinematics.model import RobotModel, rot_z
 from kinematics.transforms import (
     ARCMIN_PER_RAD,
@@ -219,9 +219,10 @@ def import_series(
 ) -> IpaImport:
     """Import one series folder into the dataset format (tracker frame), identifying frames.
 
-    ``T_W_0`` and ``T_6_S`` come from :func:`kinematics.frames.fit_frames` on all rows (the first
-    ``frames_rows`` only, if given: what a new day knows of its frames from its first points,
-    before a model carried into it has seen the rest), started
+    ``T_W_0`` and ``T_6_S`` come from :func:`kinematics.frames.fit_frames_screened` on all rows
+    (the first ``frames_rows`` only, if given: what a new day knows of its frames from its first
+    points, before a model carried into it has seen the rest; a gross outlier among them is left
+    out of the fit and named in ``extra["frame_fit_left_out_rows"]``, kept in the table), started
     from the inverted ``Trafo_TM_F_init.txt`` and, where present, the hand-eye file. Writes
     ``out`` (``.parquet`` or ``.csv`` plus sidecar) when given. ``progress`` is called with the
     name of each finished stage (read, frames, table, write).
@@ -260,9 +261,12 @@ def import_series(
         if not 3 <= n <= len(q):
             raise DatasetError(f"{path}: frames_rows must be in [3, {len(q)}] rows, got {n}")
         extra["frames_rows"] = n
-    fit = fit_frames(T_W_S[:n], flange[:n], T_W_0_init=W0_init, T_6_S_init=S6_init)
+    fit, left_out = fit_frames_screened(
+        T_W_S[:n], flange[:n], T_W_0_init=W0_init, T_6_S_init=S6_init
+    )
     progress("frames")
     extra["frame_fit"] = fit.summary().to_dict()
+    extra["frame_fit_left_out_rows"] = left_out.tolist()
     extra["trafo_inverse_vs_T_6_S"] = _frame_gap(S6_init, fit.T_6_S)
     if W0_init is not None:
         extra["handeye_T_W_0_vs_T_W_0"] = _frame_gap(W0_init, fit.T_W_0)

@@ -73,11 +73,14 @@ class ImportIpa(Command):
             "fit_mean_mm": fit.mean_mm,
             "fit_max_mm": fit.max_mm,
             "fit_mean_arcmin": fit.mean_arcmin,
+            "frame_fit_left_out_rows": meta.extra["frame_fit_left_out_rows"],
         }
+        left_out = meta.extra["frame_fit_left_out_rows"]
+        note = f"\nrows left out of the frame fit as gross outliers: {left_out}" if left_out else ""
         text = (
             f"{result.series}: {len(result.dataset)} points -> {result.path}\n"
             f"frames fit residual: mean {fit.mean_mm:.3f} mm, max {fit.max_mm:.3f} mm, "
-            f"mean {fit.mean_arcmin:.2f} arcmin; time from {meta.extra['time_source']}"
+            f"mean {fit.mean_arcmin:.2f} arcmin; time from {meta.extra['time_source']}" + note
         )
         emit(payload, args.json, text)
         return 0

@@ -150,6 +150,22 @@ def test_frames_from_the_first_rows_only(tmp_path):
         import_series(tmp_path / "S", frames_rows=2)
 
 
+def test_a_lost_beam_is_left_out_of_the_frame_fit_and_kept_in_the_table(tmp_path):
+    """Exact synthetic poses (every row alike to the tracker's noise) with one row 1 m off:
+    the frames are fitted without it, as exactly as without the row, and the row is kept."""
+    write_series(tmp_path / "S", n=60)
+    csv = tmp_path / "S" / "measurements_synthetic.csv"
+    frame = pd.read_csv(csv, sep=";", decimal=",", dtype={"Timestamp": str})
+    frame.loc[17, "measurement_x"] += 1000.0
+    frame.to_csv(csv, sep=";", decimal=",", index=False)
+    ds = import_series(tmp_path / "S").dataset
+    assert ds.meta.extra["frame_fit_left_out_rows"] == [17] and len(ds) == 60
+    assert gap(np.asarray(ds.meta.T_W_0), T_W_0) < 1e-7
+    assert gap(np.asarray(ds.meta.T_6_S), T_6_S) < 1e-7
+    write_series(tmp_path / "C", n=60)
+    assert import_series(tmp_path / "C").dataset.meta.extra["frame_fit_left_out_rows"] == []
+
+
 @pytest.mark.shared_data
 def test_real_series_b(shared_data, tmp_path):
     result = import_series(shared_data / "ur10-ipa" / "Series_B", out=tmp_path / "b.csv")
@@ -161,6 +177,7 @@ def test_real_series_b(shared_data, tmp_path):
     assert s.mean_mm < 1.5 and s.max_mm < 3.0 and s.mean_arcmin < 10
     # The hand-eye file's base frame agrees with the one identified from all rows.
     assert ds.meta.extra["handeye_T_W_0_vs_T_W_0"]["mm"] < 2.0
+    assert ds.meta.extra["frame_fit_left_out_rows"] == []
     assert 5e-6 < ds.meta.noise_floor_m < 1e-4
     # Every recorded pose was measurable, as the tracker saw it.
     vis = measurability_from_poses(ds.measured_poses())

@@ -97,6 +97,14 @@ def test_a_clean_campaign_lies_far_inside_the_threshold(campaign):
     assert gross_outliers(errors).size == 0
 
 
+def test_exact_errors_are_judged_at_the_tracker_noise():
+    """Errors alike to a nanometre (an exact simulation) are not outliers of each other."""
+    errors = np.random.default_rng(0).normal(scale=1e-9, size=(100, 6))
+    assert gross_outliers(errors).size == 0
+    errors[3, 2] = 0.05  # 50 mm off
+    assert gross_outliers(errors).tolist() == [3]
+
+
 def test_a_joint_past_its_limit_stops_with_one_line(campaign, tmp_path):
     table = campaign.table.copy()
     table.loc[9, "q2"] = 1e6
