@@ -48,3 +48,9 @@ def gross_outliers(errors: np.ndarray, threshold: float = GROSS_THRESHOLD) -> np
     ``MAX_GROSS_SHARE`` of the rows are."""
     far = np.flatnonzero(robust_distance(errors, errors, TRACKER_NOISE) > threshold)
     return far if len(far) <= MAX_GROSS_SHARE * len(errors) else far[:0]
+
+
+def without_gross_rows(X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``X, Y`` without the rows whose errors ``Y`` are gross outliers (:func:`gross_outliers`)."""
+    keep = np.setdiff1d(np.arange(len(Y)), gross_outliers(Y))
+    return X[keep], Y[keep]
