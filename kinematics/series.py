@@ -1,8 +1,9 @@
 """A measured series read for calibration or learning: every joint angle checked against the
 robot's limits, and the gross outliers (:mod:`kinematics.outliers`) dropped and named.
 
-Every command that fits or learns from a dataset file reads it here (``calibrate``, ``gap``,
-``train``, ``continual``, ``evaluate``, ``hpo``), so one lost tracker beam cannot decide a fit.
+Every command that fits, learns from or summarises a dataset file reads it here (``calibrate``,
+``gap``, ``train``, ``continual``, ``evaluate``, ``hpo``, ``experiment paper``, ``data
+summary``), so one lost tracker beam cannot decide a fit.
 """
 
 from __future__ import annotations

@@ -266,7 +266,7 @@ class ContinualLearner:
         (:func:`~learner.carry_base.checking_labels`) and ``unverified``
         (:func:`~learner.carry.unverified`); a reference program that fitted the geometry checks
         them itself: no narrower than its folds need, times the drift. Its points refit frames
-        (a lost beam among them left out: free, one 1 m off had moved the day's base 33 mm)."""
+        (gross outliers left out: one 1 m off had moved a freely fitted day's base 33 mm)."""
         X, Y = without_gross_rows(*checked_batch(X, Y, self.model.spec.n_features))
         needed, miss = scale_needed(self.model, X, Y)
         young = self.day_scale is not None and len(self._cal_x) < MIN_DAY_POINTS

@@ -72,10 +72,8 @@ def test_calibrate_names_the_dropped_row_and_fits_the_rest(series_b, tmp_path, c
     out = capsys.readouterr()
     assert json.loads(out.out)["residual"]["max_mm"] < 5.0
     err = [line for line in out.err.splitlines() if line.startswith("robocal:")]
-    assert err == [
-        f"robocal: {bad}: dropped 2 of 1495 rows as gross outliers (row 13, 700; up to "
-        + err[0].split("up to ")[1]
-    ]
+    prefix = f"robocal: {bad}: dropped 2 of 1495 rows as gross outliers (row 13, 700; up to "
+    assert len(err) == 1 and err[0].startswith(prefix)
 
 
 def test_one_row_far_off_is_dropped_and_a_change_of_set_up_is_kept(campaign, tmp_path):
