@@ -66,6 +66,20 @@ def test_a_lost_beam_in_real_series_b_is_dropped_and_named(series_b, tmp_path):
 
 
 @pytest.mark.shared_data
+def test_a_lost_beam_is_found_where_the_metadata_lacks_the_tracker_frame(series_b, tmp_path):
+    """Tracker-frame poses without ``T_W_0`` (calibration fits it) are judged in frames fitted
+    to them: as measured, the row 1 m off lay 16 robust units out."""
+    clean = read_dataset(series_b)
+    unknown = Dataset(clean.table, replace(clean.meta, T_W_0=None))
+    bad = write_dataset(moved(unknown, [13], 1.0), tmp_path / "bad.parquet")
+    notices = []
+    assert len(read_series(bad, notify=notices.append)[1]) == 1494
+    assert "(row 13;" in notices[0]
+    kept = write_dataset(unknown, tmp_path / "clean.parquet")
+    assert len(read_series(kept, notify=notices.append)[1]) == 1495 and len(notices) == 1
+
+
+@pytest.mark.shared_data
 def test_calibrate_names_the_dropped_row_and_fits_the_rest(series_b, tmp_path, capsys):
     bad = write_dataset(moved(read_dataset(series_b), [13, 700], -0.2), tmp_path / "bad.parquet")
     assert main(["calibrate", "--data", str(bad), "--json"]) == 0
