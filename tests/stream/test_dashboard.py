@@ -6,6 +6,7 @@ import socket
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from urllib.parse import parse_qs, urlparse
 
@@ -18,12 +19,14 @@ from scipy.spatial.transform import Rotation
 from kinematics.description import load_description
 from kinematics.model import RobotModel
 from learner.evidential import Evidential
-from stream.bus import free_port
+from stream.bus import BusConfig, free_port, open_session
 from stream.compensation import CompensationReply
 from stream.dashboard import MAX_SERIES, Dashboard, PointBatch, read_scalars, viewer_url
 from stream.dashboard_robot import robot_archetypes, segments, skeleton, z_to
 from stream.dashboard_scores import error_colors, norm_band, rolling_coverage, score_points
-from wire import Diagnostics, Metrics
+from stream.stages.dashboard_stage import POINTS_EVERY_S, DashboardStage
+from tests.stream.wire_examples import POINT
+from wire import Diagnostics, Metrics, encode, key
 
 UR10 = RobotModel(load_description("ur10"))
 
@@ -191,6 +194,39 @@ def test_a_served_dashboard_still_writes_its_rrd(tmp_path):
     assert len(read_scalars(tmp_path / "s.rrd")["/metrics/test_error/mean"][0]) == 2
     styled = {c.entity_path for c in RrdReader(str(tmp_path / "s.rrd")).stream() if c.is_static}
     assert "/metrics/test_error/mean" in styled  # names and colours reach the file
+
+
+@pytest.mark.integration
+def test_a_burst_of_points_is_drawn_in_few_batches_and_none_is_lost(tmp_path):
+    """Points that come faster than a drawing pays for wait up to ``POINTS_EVERY_S``: the
+    stage's 0.2 s idle tick would otherwise draw a handful of points five times a second."""
+    port = free_port()
+    bus = open_session(BusConfig.loopback(port, listen=True))
+    source = open_session(BusConfig.loopback(port, listen=False))
+    dash = Dashboard(UR10)
+    dash.open(rrd=tmp_path / "p.rrd")
+    stage = DashboardStage(bus, "c", "ur10", dash, UR10)
+    drawn: list[int] = []
+    draw = dash.log_points
+    dash.log_points = lambda b: (drawn.append(len(b.seq)), draw(b))[1]
+    try:
+        time.sleep(0.5)  # let the source's link come up
+        start = time.monotonic()
+        for i in range(40):
+            source.put(key("c", "ur10", "points"), encode(replace(POINT, seq=i)))
+            time.sleep(0.05)
+        deadline = time.monotonic() + 10.0
+        while sum(drawn) < 40 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        elapsed = time.monotonic() - start
+    finally:
+        stage.close()
+        source.close()
+        bus.close()
+        dash.close()
+    assert sum(drawn) == 40
+    assert 2 <= len(drawn) <= elapsed / POINTS_EVERY_S + 2, (drawn, elapsed)
+    assert len(read_scalars(tmp_path / "p.rrd")["/points/error/measured"][0]) == 40
 
 
 RUN_CONFIG = """

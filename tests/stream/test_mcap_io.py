@@ -98,6 +98,8 @@ def test_a_start_never_overwrites_and_parts_split_by_size_and_time(tmp_path):
     rec.close()
     assert path.read_bytes() == b"an earlier recording"
     assert rec.paths[0] == tmp_path / "rec.1.mcap" and len(rec.paths) >= 3
+    # a part ends at the first message past the size (its footer and summary after it)
+    assert all(6_000 <= p.stat().st_size < 12_000 for p in rec.paths[:-1])
     readers = [RecordingReader(p) for p in rec.paths]
     assert all(r.finished for r in readers)  # every closed part has its footer
     meta = [dict(r.metadata())[FILE_METADATA] for r in readers]
