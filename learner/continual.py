@@ -34,18 +34,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from kinematics.model import RobotModel
-from kinematics.outliers import without_gross_rows
+from learner import continual_day
 from learner.base import PhysicsBase, identify_base, nominal_base
-from learner.carry import (
-    MIN_DAY_POINTS,
-    CarriedDay,
-    hold_day,
-    position_factor,
-    scale_needed,
-    unverified,
-)
-from learner.carry_base import DayPoints, carried_base, checking_labels, day_frames
+from learner.carry import MIN_DAY_POINTS, CarriedDay, hold_day
 from learner.config import ContinualConfig
 from learner.conformal import adapt_log_scale, take_up
 from learner.continual_base import REFINED, doubled, due, memory_base, refined_base, status
@@ -161,7 +152,7 @@ class ContinualLearner:
         self._cal_x = np.concatenate([self._cal_x, X_new[held]])[-keep_last:]
         self._cal_y = np.concatenate([self._cal_y, Y_new[held]])[-keep_last:]
         X_new, Y_new = X_new[~held], Y_new[~held]
-        self._follow_day(X_new, Y_new)
+        continual_day.follow(self, X_new, Y_new)
         pool_x = np.concatenate([self._mem_x, X_new])
         pool_y = np.concatenate([self._mem_y, Y_new])
         pred = self.trained.predict(pool_x).gamma
@@ -256,73 +247,14 @@ class ContinualLearner:
         self.n_seen = len(X)
 
     def carry(self, X: np.ndarray, Y: np.ndarray) -> float:
-        """Start a new day or cell from its first points ``X, Y``: re-identify the base's frames
-        (:func:`learner.carry_base.carried_base`), empty the held-out set (another day's) and fit
-        the carried network's gain on these points (:meth:`ErrorModel.weigh_residual`); returns it.
-        Gain and scale are re-fitted on the day's held-out points once :data:`MIN_DAY_POINTS`
-        are there (its mark kept until they are spread: :func:`~learner.carry.hold_day`). Until
-        then the scale is the model's times its ``drift_scale`` (not again on a young day), or,
-        where the frames moved or these points need a far wider one, no narrower than they show
-        (:func:`~learner.carry_base.checking_labels`) and ``unverified``
-        (:func:`~learner.carry.unverified`); a reference program that fitted the geometry checks
-        them itself: no narrower than its folds need, times the drift. Its points refit frames
-        (gross outliers left out: one 1 m off had moved a freely fitted day's base 33 mm)."""
-        X, Y = without_gross_rows(*checked_batch(X, Y, self.model.spec.n_features))
-        needed, miss = scale_needed(self.model, X, Y)
-        young = self.day_scale is not None and len(self._cal_x) < MIN_DAY_POINTS
-        drift = np.ones_like(self.model.drift_scale) if young else self.model.drift_scale
-        points = DayPoints(self.model.spec, X, Y, self.model.residual(X))
-        old, start = self.base, carried_base(self.base, points, self.cfg)
-        source = start.base if self.cfg.reference_program else old  # the day's refits' centre
-        self.day = CarriedDay.start(source, len(X), X.shape[1], self.n_seen, start.aside)
-        self.rebase(start.base)
-        self._cal_x, self._cal_y = self._cal_x[:0], self._cal_y[:0]
-        self.trained.residual_gain = self.model.weigh_residual(X, Y)
-        scale = self.model.interval_scale * drift  # a later day, as its own last hours showed
-        mark = unverified(start.moved, miss / position_factor(drift), len(X))
-        labels = checking_labels(start, old, points, self.cfg)
-        if labels is not None:
-            needed = self.model.calibrate(X, labels)
-        if start.refitted:  # minutes of poses: they widen the scale, never narrow it
-            scale, mark = np.maximum(scale, needed * drift), ""
-        elif mark:
-            scale = np.maximum(scale, needed)
-        self.model.interval_scale, self.model.unverified = scale, mark
-        self.day_scale = scale / np.exp(self.aci_log_scale)
-        return self.trained.residual_gain
+        """Start a new day or cell from its first points ``X, Y``: its frames fitted again, the
+        carried network's gain on them, returned (:func:`learner.continual_day.carry`)."""
+        return continual_day.carry(self, X, Y)
 
     def rebase(self, base: PhysicsBase, keep: np.ndarray | None = None) -> None:
-        """Put both models on a new physics base (e.g. frames re-identified on a new day); the
-        memory's labels move with it so that each point keeps its residual. With ``keep`` (a
-        carried day's frames fitted again) the memory points it marks and the held-out set,
-        all measured in the day's frames, keep their labels."""
-        nominal = RobotModel(self.model.spec.description)
-
-        def shift(x: np.ndarray) -> np.ndarray:
-            return base.error(self.model.spec, x, nominal) - self.trained.base_error(x)
-
-        if keep is None:
-            self._cal_y += shift(self._cal_x)
-            keep = np.zeros(len(self._mem_x), dtype=bool)
-        self._mem_y += np.where(keep[:, None], 0.0, shift(self._mem_x))
-        for model in (self.model, self.trained):
-            model.base = base
-
-    def _follow_day(self, X: np.ndarray, Y: np.ndarray) -> None:
-        """Add a carried day's trained points; when they have doubled, fit its frames again on
-        all of them from the frames it was carried from, and weigh what a reference program
-        set aside on its held-out points (:func:`~learner.carry_base.day_frames`)."""
-        if self.day is None:
-            return
-        limit = self.cfg.day_frame_points
-        day = self.day = self.day.add(X, Y, limit)
-        if not day.due(limit):
-            return
-        spec, residual = self.model.spec, self.model.residual
-        trained = DayPoints(spec, day.x, day.y, residual(day.x))
-        held = DayPoints(spec, self._cal_x, self._cal_y, residual(self._cal_x))
-        base, self.day = day_frames(day, self.base, trained, held, self.cfg)
-        self.rebase(base, keep=day.holds(self._mem_x))
+        """Put both models on a new physics base, the memory's labels moved with it
+        (:func:`learner.continual_day.rebase`)."""
+        continual_day.rebase(self, base, keep)
 
     def _adapt_intervals(self, X: np.ndarray, Y: np.ndarray) -> float:
         """Adaptive conformal inference on the interval scale, point by point in stream order
