@@ -59,7 +59,7 @@ def to_dict(msg: Any) -> dict[str, Any]:
 
 def encode(msg: Any) -> bytes:
     """Compact UTF-8 JSON of a message: :func:`to_dict`'s JSON, written without its deep copy
-    (a joint sample in 6 µs instead of 25: the sources and the window encode every sample)."""
+    (a joint sample in 9 µs instead of 21-25: the sources and the window encode every sample)."""
     head = {"schema": msg.SCHEMA, "version": VERSION, **_fields_of(msg)}
     return json.dumps(head, separators=(",", ":"), allow_nan=True, default=_fields_of).encode()
 

@@ -14,6 +14,9 @@ asker).
 
 from __future__ import annotations
 
+import math
+import time
+
 import numpy as np
 import zenoh
 
@@ -63,7 +66,7 @@ class DashboardStage(Stage):
         self.model: ErrorModel | None = None
         self._pending: list[tuple[DataPoint, float]] = []
         self._shape: tuple | None = None
-        self._drawn_t = float("-inf")  # when points were last drawn (s since 1970)
+        self._drawn_t = -math.inf  # when points were last drawn (monotonic s)
         for stream in ("metrics", "points", "model", "diagnostics", "compensate"):
             self.subscribe(stream)
 
@@ -100,8 +103,9 @@ class DashboardStage(Stage):
         return p
 
     def on_idle(self, now: float) -> None:
-        if self._pending and now - self._drawn_t >= POINTS_EVERY_S:
-            self._drawn_t = now
+        tick = time.monotonic()  # not ``now``: a wall clock set back must not hold points
+        if self._pending and tick - self._drawn_t >= POINTS_EVERY_S:
+            self._drawn_t = tick
             self._log_points()
 
     def _log_points(self) -> None:
