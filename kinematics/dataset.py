@@ -169,15 +169,22 @@ def validate(ds: Dataset, source: str = "dataset", limits_rad: np.ndarray | None
             f"{source}: row {bad[0]}: quaternion norm {norms[bad[0]]:.4f}, expected 1"
         )
     if limits_rad is not None:
-        q = t[qcols].to_numpy(float)
-        lo, hi = limits_rad[: len(qcols), 0], limits_rad[: len(qcols), 1]
-        out = np.argwhere((q < lo - 1e-9) | (q > hi + 1e-9))
-        if out.size:
-            r, c = out[0]
-            raise DatasetError(
-                f"{source}: row {r}, column {qcols[c]!r}: {np.rad2deg(q[r, c]):.3f} deg outside "
-                f"the joint limits [{np.rad2deg(lo[c]):.1f}, {np.rad2deg(hi[c]):.1f}] deg"
-            )
+        check_joint_limits(ds, source, limits_rad)
+
+
+def check_joint_limits(ds: Dataset, source: str, limits_rad: np.ndarray) -> None:
+    """Raise :class:`DatasetError` naming the first row and joint outside ``limits_rad``
+    (rad, (n, 2)): the part of :func:`validate` that needs the robot's description."""
+    qcols = joint_columns(ds.table)
+    q = ds.table[qcols].to_numpy(float)
+    lo, hi = limits_rad[: len(qcols), 0], limits_rad[: len(qcols), 1]
+    out = np.argwhere((q < lo - 1e-9) | (q > hi + 1e-9))
+    if out.size:
+        r, c = out[0]
+        raise DatasetError(
+            f"{source}: row {r}, column {qcols[c]!r}: {np.rad2deg(q[r, c]):.3f} deg outside "
+            f"the joint limits [{np.rad2deg(lo[c]):.1f}, {np.rad2deg(hi[c]):.1f}] deg"
+        )
 
 
 def meta_path(path: str | Path) -> Path:

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from kinematics.accuracy import nominal_poses
-from kinematics.dataset import Dataset, read_dataset, validate
+from kinematics.dataset import Dataset, check_joint_limits, read_dataset
 from kinematics.description import RobotDescription
 from kinematics.frames import fit_frames_screened
 from kinematics.identity import description_for
@@ -82,9 +82,9 @@ def read_series(
     """The dataset at ``path`` and its description (``robot``, default the dataset's own,
     matched by :func:`kinematics.identity.description_for`), every joint angle checked against
     the description's limits and the gross outliers dropped; ``notify`` hears of those."""
-    ds = read_dataset(path)
+    ds = read_dataset(path)  # validated, all but the joint limits its description gives
     desc = description_for(ds, robot, path)
-    validate(ds, str(path), desc.limits_rad)
+    check_joint_limits(ds, str(path), desc.limits_rad)
     ds, dropped = without_gross_outliers(ds, desc)
     if dropped is not None and notify is not None:
         notify(dropped.notice(str(path)))
