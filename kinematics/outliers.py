@@ -9,7 +9,8 @@ units from the series' own errors (:func:`robust_distance`); clean series reach 
 and B, the paper campaign, twenty random arms). The stream's quarantine judges a point before
 its first model by the same measure and number (:mod:`learner.quarantine`). When more than
 ``MAX_GROSS_SHARE`` of the rows are that far, they are a change of set-up within the file, not
-faults, and none is an outlier.
+faults, and none is an outlier; one row alone always is (a lost beam among a carried day's first
+10 points is a fault, not a new set-up).
 
 >>> rng = np.random.default_rng(0)
 >>> errors = rng.normal(scale=1e-3, size=(200, 6))  # m and rad
@@ -45,9 +46,9 @@ def robust_distance(r: np.ndarray, reference: np.ndarray, floor: float = 1e-12) 
 def gross_outliers(errors: np.ndarray, threshold: float = GROSS_THRESHOLD) -> np.ndarray:
     """Rows of ``errors`` (N, k; m and rad) more than ``threshold`` robust units from the
     series' own, a spread below ``TRACKER_NOISE`` counted as that; none when more than
-    ``MAX_GROSS_SHARE`` of the rows are."""
+    ``MAX_GROSS_SHARE`` of the rows (and more than one) are."""
     far = np.flatnonzero(robust_distance(errors, errors, TRACKER_NOISE) > threshold)
-    return far if len(far) <= MAX_GROSS_SHARE * len(errors) else far[:0]
+    return far if len(far) <= max(1.0, MAX_GROSS_SHARE * len(errors)) else far[:0]
 
 
 def without_gross_rows(X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
