@@ -155,7 +155,10 @@ def features(
         temps = {temperature_column(k): v for k, v in (temperatures or {}).items()}
         missing = [c for c in plan.temps if c not in temps]
         if missing:
-            raise DatasetError(f"no temperature {missing[0]!r} for feature {missing[0]!r}")
+            have = ", ".join(sorted(temps)) or "none"
+            raise DatasetError(
+                f"no thermometer {missing[0]!r}, which the model reads (the data has: {have})"
+            )
         try:  # (k,) one value per thermometer, or (k, N) one per point
             values = np.array([temps[c] for c in plan.temps], dtype=float)
         except ValueError:
@@ -227,7 +230,7 @@ def temperature_readings(spec: FeatureSpec, X: np.ndarray) -> dict[str, np.ndarr
 def dataset_features(ds: Dataset, spec: FeatureSpec) -> np.ndarray:
     """Raw SI features ``(N, F)`` of ``ds`` in ``spec.names`` order."""
     t = ds.table
-    temps = {c: t[c].to_numpy(float) for c in temperature_columns(t) if c in spec.names}
+    temps = {c: t[c].to_numpy(float) for c in temperature_columns(t)}  # all: an error names them
     deflection = ds.deflection() if _plan(spec.names).dtheta.size else None
     return features(spec, ds.q(), deflection, temps)
 

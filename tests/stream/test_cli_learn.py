@@ -289,7 +289,7 @@ def test_a_model_or_base_of_another_robot_stops_with_one_line(data_file, tmp_pat
     argv = ["continual", "--from", str(model), "--data", str(fewer), "--out", str(tmp_path / "x")]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
-    assert err.startswith("robocal: ") and "temp_link2" in err
+    assert err.startswith("robocal: ") and "no thermometer 'temp_link2', which the model" in err
 
 
 def test_the_cli_caps_torch_threads(data_file, tmp_path, capsys):
