@@ -33,6 +33,7 @@ from learner.training import set_compute_threads
 from stream.bus import BusUnreachableError, open_session
 from stream.config import DaemonConfig, RobotConfig, dashboard_index
 from stream.dashboard import Dashboard
+from stream.learner_core import check_thermometers
 from stream.log import JsonLogger
 from stream.mcap_io import next_free_path
 from stream.sources.build import SourceThread, build_source
@@ -191,6 +192,9 @@ class Daemon:
             self.stages.append(self.windows[rc.name])
         if "learner" in rc.stages:
             ckpt = None if state is None else state / f"{rc.name}.checkpoint.safetensors"
+            start_from, pinned = cfg.learner.start_from, cfg.window.temperature_names
+            if start_from and pinned and not (ckpt is not None and ckpt.exists()):
+                check_thermometers(start_from, pinned)
             stage = LearnerStage(s, cfg.cell, rc.name, desc, cfg.learner, T_W_0, ckpt, self.log)
             self.learners[rc.name] = stage
             self.stages.append(stage)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -25,6 +26,7 @@ from safetensors import SafetensorError
 from safetensors.numpy import load as np_load
 from safetensors.numpy import save as np_save
 
+from kinematics.dataset import temperature_column, temperature_columns
 from kinematics.description import RobotDescription
 from kinematics.errors import ConfigError, RobocalError, SnapshotError
 from kinematics.gap.model_file import load_model_file
@@ -38,7 +40,7 @@ from learner.continual_state import state_from_bytes, state_to_bytes
 from learner.features import FeatureSpec, feature_spec
 from learner.holdout import HeldOut, MemoryAge, heldout_metrics, holdout_mask
 from learner.model import ErrorModel
-from learner.snapshot import read_metadata, snapshot_from_bytes, snapshot_to_bytes
+from learner.snapshot import load_snapshot, read_metadata, snapshot_from_bytes, snapshot_to_bytes
 from learner.training import Trainer
 from stream.points import point_arrays
 from wire import Batch, Metrics, ModelHeader, RejectedMessageError
@@ -89,6 +91,19 @@ class Update:
     header: ModelHeader
     snapshot: bytes
     metrics: Metrics
+
+
+def check_thermometers(path: str, names: Sequence[str]) -> None:
+    """ConfigError where the model file ``path`` (``learner.start_from``) reads a thermometer
+    that none of ``names`` (the window's pinned channels) gives: each of its batches would be
+    refused as ``features``."""
+    given = {temperature_column(n) for n in names}
+    missing = [c for c in temperature_columns(load_snapshot(path).spec.names) if c not in given]
+    if missing:
+        raise ConfigError(
+            f"learner.start_from {path}: its model reads {', '.join(missing)}, which "
+            f"window.temperature_names ({', '.join(names)}) does not give"
+        )
 
 
 class LearnerCore:

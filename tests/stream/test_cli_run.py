@@ -58,3 +58,39 @@ def test_bad_input_exits_2_with_one_line(argv, tmp_path, capsys):
     assert main([a.format(tmp=tmp_path) for a in argv]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) >= 1 and err[-1].startswith("robocal: error:")
+
+
+def test_a_start_from_model_reading_a_thermometer_the_window_does_not_pin_stops_the_start(
+    train_fanuc, tmp_path
+):
+    """Every batch would be refused as ``features``: the daemon says so before it starts
+    (``robocal run`` prints the ConfigError as its one line and exits 2)."""
+    from kinematics.errors import ConfigError
+    from learner.snapshot import save_snapshot
+    from stream.bus import free_port
+    from stream.config import load_config
+    from stream.config_render import loopback_config, write_config
+    from stream.daemon import Daemon
+
+    _, model, _ = train_fanuc(40, ModelConfig(hidden_layers=1, neurons=8), 2, lambda q: 0 * q)
+    save_snapshot(model, tmp_path / "day1.safetensors")
+    robot = {"name": "arm", "description": "fanuc_m900ib700", "stages": ["window", "learner"]}
+
+    def config(names: list[str]) -> str:
+        raw = loopback_config(
+            "plant",
+            free_port(),
+            robot,
+            window={"temperature_names": names},
+            learner={"start_from": str(tmp_path / "day1.safetensors")},
+        )
+        return str(write_config(tmp_path / "robocal.toml", raw))
+
+    with pytest.raises(ConfigError) as refused:
+        Daemon(load_config(config(["cabinet"]))).start()
+    assert str(refused.value) == (
+        f"learner.start_from {tmp_path / 'day1.safetensors'}: its model reads temp_ambient, "
+        "which window.temperature_names (cabinet) does not give"
+    )
+    daemon = Daemon(load_config(config(["ambient"]))).start()  # the thermometer it reads
+    assert daemon.stop(timeout_s=10.0) == {}
