@@ -6,8 +6,14 @@ import numpy as np
 import pytest
 import torch
 
+from kinematics.errors import ConfigError
 from learner.config import ContinualConfig, ModelConfig, TrainConfig
+from learner.snapshot import save_snapshot
+from stream.bus import free_port
 from stream.cli import main
+from stream.config import load_config
+from stream.config_render import loopback_config, write_config
+from stream.daemon import Daemon
 from stream.dashboard import read_scalars
 from stream.demo import run_demo
 from stream.learner_core import LearnerStageConfig
@@ -65,13 +71,6 @@ def test_a_start_from_model_reading_a_thermometer_the_window_does_not_pin_stops_
 ):
     """Every batch would be refused as ``features``: the daemon says so before it starts
     (``robocal run`` prints the ConfigError as its one line and exits 2)."""
-    from kinematics.errors import ConfigError
-    from learner.snapshot import save_snapshot
-    from stream.bus import free_port
-    from stream.config import load_config
-    from stream.config_render import loopback_config, write_config
-    from stream.daemon import Daemon
-
     _, model, _ = train_fanuc(40, ModelConfig(hidden_layers=1, neurons=8), 2, lambda q: 0 * q)
     save_snapshot(model, tmp_path / "day1.safetensors")
     robot = {"name": "arm", "description": "fanuc_m900ib700", "stages": ["window", "learner"]}
