@@ -154,12 +154,11 @@ class McapRecorder:
         while True:  # exclusive create: a file another start made meanwhile is never truncated
             path = next_free_path(self.requested)
             try:
-                self._file: BinaryIO = path.open("xb")
+                self._counted = _CountedFile(path.open("xb"))
                 break
             except FileExistsError:
                 continue
         self.path = path
-        self._counted = _CountedFile(self._file)
         self._writer = Writer(self._counted, chunk_size=CHUNK_BYTES)
         self._writer.start(profile="", library=f"robocal {robocal_version()}")
         self._writer.add_metadata(
@@ -233,9 +232,9 @@ class McapRecorder:
         self._last_flush, self.unflushed = time.monotonic(), 0
 
     def _finish(self) -> None:
-        if not self._file.closed:
+        if not self._counted.file.closed:
             self._writer.finish()
-            self._file.close()
+            self._counted.file.close()
 
     def close(self) -> None:
         """Write the summary and footer and close the file."""
@@ -246,7 +245,7 @@ class McapRecorder:
         readable up to its last flushed chunk (:class:`RecordingReader`). The messages added
         since that flush are lost: their count."""
         with contextlib.suppress(OSError):
-            self._file.close()
+            self._counted.file.close()
         lost, self.unflushed = self.unflushed, 0
         return lost
 
@@ -258,7 +257,7 @@ class McapRecorder:
         except OSError:
             if self.path not in self.paths:  # created, never started: not a recording
                 with contextlib.suppress(OSError):
-                    self._file.close()
+                    self._counted.file.close()
                     self.path.unlink()
             raise
 
