@@ -103,6 +103,17 @@ def wait_for(cond: Callable[[], bool], timeout: float = 60.0) -> bool:
     return cond()
 
 
+def wait_subscribed(session, *keyexprs: str, timeout: float = 60.0) -> None:
+    """Wait until ``session`` knows a subscriber on each of ``keyexprs``: a put before that is
+    lost (a fixed pause before the first put was too short on a loaded 2-core machine)."""
+    for keyexpr in keyexprs:
+        pub = session.declare_publisher(keyexpr)
+        try:
+            assert wait_for(lambda pub=pub: pub.matching_status.matching, timeout), keyexpr
+        finally:
+            pub.undeclare()
+
+
 def wait_alive(session, n: int, proc: subprocess.Popen, timeout: float = 60.0) -> None:
     """Wait until ``n`` stages of cell "plant" are alive; fail at once if ``proc`` exits."""
     deadline = time.monotonic() + timeout

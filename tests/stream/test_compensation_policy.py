@@ -13,6 +13,7 @@ from stream.bus import BusConfig, free_port, open_session
 from stream.compensation import CompensationConfig, CompensationReply, CompensationRequest
 from stream.compensation_guard import GuardConfig, guarded_compensate
 from stream.stages.compensation_service import CompensationService
+from tests.stream.conftest import wait_subscribed
 from wire import ModelHeader, decode, encode, encode_model, key
 
 # q5 = 1 mrad: the wrist is nearly singular (smallest singular value of the controller
@@ -101,7 +102,7 @@ def test_the_service_answers_with_its_configured_policy(fanuc):
     cfg = CompensationConfig(max_iterations=5, epistemic_limit_mm=100.0, policy="best_effort")
     service = CompensationService(server, cell, name, robot, cfg)
     try:
-        time.sleep(0.5)
+        wait_subscribed(client, key(cell, name, "model"))
         header = ModelHeader(model_version=1, robot=name, n_seen=100, t=1.0)
         client.put(key(cell, name, "model"), encode_model(header, snapshot_to_bytes(model)))
         deadline = time.monotonic() + 30.0

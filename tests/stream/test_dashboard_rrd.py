@@ -28,7 +28,8 @@ from stream.demo import compensation_check, demo_config
 from stream.learner_core import LearnerStageConfig
 from stream.log import JsonLogger
 from stream.sources import SimCellSource
-from wire import TrackerSample
+from tests.stream.conftest import wait_subscribed
+from wire import TrackerSample, key
 
 pytestmark = pytest.mark.integration
 
@@ -68,7 +69,9 @@ def rrd(tmp_path_factory) -> Path:
     dashboard = next(s for s in daemon.stages if s.name == "dashboard")
     session = open_session(BusConfig.loopback(port, listen=False))
     try:
-        time.sleep(0.5)
+        wait_subscribed(
+            session, *(key(CELL, robot, s) for s in ("joints", "tracker", "temperature"))
+        )
         source = GatedSource(
             session,
             CELL,

@@ -22,6 +22,7 @@ from stream.learner_core import LearnerCore, LearnerStageConfig
 from stream.log import JsonLogger
 from stream.points import dataset_to_points
 from stream.stages.learner_stage import LearnerStage, read_checkpoint, write_checkpoint
+from tests.stream.conftest import wait_subscribed
 from wire import Batch, Diagnostics, Metrics, RejectedMessageError, decode, encode, key
 
 CFG = LearnerStageConfig(
@@ -296,7 +297,7 @@ def test_the_learner_stage_publishes_the_quarantine(batches):
         x, y, z = points[i].xyz
         points[i] = replace(points[i], xyz=(x, y + 0.05, z))
     try:
-        time.sleep(0.5)
+        wait_subscribed(client, key("cell", robot, "batches"))
         for b in (*bs[:3], Batch(seq=3, points=tuple(points))):
             client.put(key("cell", robot, "batches"), encode(b))
         deadline = time.monotonic() + 120  # the first batch is too small for a model: 3 updates
@@ -358,7 +359,7 @@ def test_the_learner_stage_trains_in_its_child_process_as_the_core_does_here(bat
     try:
         with open(f"/proc/{pid}/cmdline", "rb") as f:
             assert b"learner.train_process" in f.read()
-        time.sleep(0.5)
+        wait_subscribed(client, key("cell", robot, "batches"))
         for b in bs[:4]:
             client.put(key("cell", robot, "batches"), encode(b))
         deadline = time.monotonic() + 60

@@ -25,6 +25,7 @@ from stream.mcap_io import recorded_samples
 from stream.replay import replay_to_bus
 from stream.sources import SimCellSource
 from stream.window import Joiner, WindowConfig
+from tests.stream.conftest import wait_subscribed
 from wire import Diagnostics, JointSample, decode, decode_model, encode, key
 
 pytestmark = pytest.mark.integration
@@ -103,7 +104,9 @@ def run_pipeline(ds, publish, mcap=None, compensate_rows=()) -> Run:
         client.declare_subscriber(key(CELL, robot, "diagnostics"), on_diagnostics),
     ]
     try:
-        time.sleep(0.5)
+        wait_subscribed(
+            client, *(key(CELL, robot, s) for s in ("joints", "tracker", "temperature"))
+        )
         daemon.end_of_stream({robot: publish(client)})
         time.sleep(0.2)
         (reply,) = [r.ok for r in client.get(key(CELL, robot, "model"), timeout=5.0)]
