@@ -25,6 +25,7 @@ from stream.dashboard import MAX_SERIES, Dashboard, PointBatch, read_scalars, vi
 from stream.dashboard_robot import robot_archetypes, segments, skeleton, z_to
 from stream.dashboard_scores import error_colors, norm_band, rolling_coverage, score_points
 from stream.stages.dashboard_stage import POINTS_EVERY_S, DashboardStage
+from tests.stream.conftest import wait_subscribed
 from tests.stream.wire_examples import POINT
 from wire import Diagnostics, Metrics, encode, key
 
@@ -210,7 +211,7 @@ def test_a_burst_of_points_is_drawn_in_few_batches_and_none_is_lost(tmp_path):
     draw = dash.log_points
     dash.log_points = lambda b: (drawn.append(len(b.seq)), draw(b))[1]
     try:
-        time.sleep(0.5)  # let the source's link come up
+        wait_subscribed(source, key("c", "ur10", "points"))
         start = time.monotonic()
         for i in range(40):
             source.put(key("c", "ur10", "points"), encode(replace(POINT, seq=i)))

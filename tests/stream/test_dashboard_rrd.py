@@ -27,6 +27,7 @@ from stream.dashboard import read_scalars
 from stream.demo import compensation_check, demo_config
 from stream.learner_core import LearnerStageConfig
 from stream.log import JsonLogger
+from stream.mcap_io import SOURCE_STREAMS
 from stream.sources import SimCellSource
 from tests.stream.conftest import wait_subscribed
 from wire import TrackerSample, key
@@ -69,9 +70,7 @@ def rrd(tmp_path_factory) -> Path:
     dashboard = next(s for s in daemon.stages if s.name == "dashboard")
     session = open_session(BusConfig.loopback(port, listen=False))
     try:
-        wait_subscribed(
-            session, *(key(CELL, robot, s) for s in ("joints", "tracker", "temperature"))
-        )
+        wait_subscribed(session, *(key(CELL, robot, s) for s in SOURCE_STREAMS))
         source = GatedSource(
             session,
             CELL,

@@ -21,7 +21,7 @@ from stream.config import DaemonConfig, RecorderConfig, RobotConfig
 from stream.daemon import Daemon
 from stream.learner_core import LearnerStageConfig
 from stream.log import JsonLogger
-from stream.mcap_io import recorded_samples
+from stream.mcap_io import SOURCE_STREAMS, recorded_samples
 from stream.replay import replay_to_bus
 from stream.sources import SimCellSource
 from stream.window import Joiner, WindowConfig
@@ -104,9 +104,7 @@ def run_pipeline(ds, publish, mcap=None, compensate_rows=()) -> Run:
         client.declare_subscriber(key(CELL, robot, "diagnostics"), on_diagnostics),
     ]
     try:
-        wait_subscribed(
-            client, *(key(CELL, robot, s) for s in ("joints", "tracker", "temperature"))
-        )
+        wait_subscribed(client, *(key(CELL, robot, s) for s in SOURCE_STREAMS))
         daemon.end_of_stream({robot: publish(client)})
         time.sleep(0.2)
         (reply,) = [r.ok for r in client.get(key(CELL, robot, "model"), timeout=5.0)]
