@@ -203,6 +203,20 @@ def publisher(session: zenoh.Session, key_expr: str) -> zenoh.Publisher:
     )
 
 
+def wait_matched(
+    publishers: list[zenoh.Publisher], timeout_s: float, stop: threading.Event | None = None
+) -> list[str]:
+    """Wait up to ``timeout_s`` (s), or until ``stop`` is set, for a subscriber on each of
+    ``publishers``; the keys still without one (a put before a subscriber is known is lost)."""
+    stop = stop or threading.Event()
+    deadline = time.monotonic() + timeout_s
+    while True:
+        waiting = [str(p.key_expr) for p in publishers if not p.matching_status.matching]
+        left = deadline - time.monotonic()
+        if not waiting or left <= 0 or stop.wait(min(0.05, left)):
+            return waiting
+
+
 @dataclass(frozen=True)
 class Received:
     """One sample as a worker sees it: key, payload, attachment and receive time (s, epoch)."""

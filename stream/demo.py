@@ -184,7 +184,6 @@ def run_demo(
     daemon = Daemon(cfg, logger=logger).start()
     source_session = open_session(BusConfig.loopback(port, listen=False))
     try:
-        time.sleep(0.5)  # let the loopback link come up before publishing
         source = SimCellSource(
             source_session, cell, robot, ds, StreamingConfig(period_s=period_s, settle_s=settle_s)
         )

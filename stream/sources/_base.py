@@ -18,7 +18,7 @@ import time
 
 import zenoh
 
-from stream.bus import publisher
+from stream.bus import publisher, wait_matched
 from wire import (
     DropCounter,
     JointSample,
@@ -84,11 +84,21 @@ class Source(abc.ABC):
         self.publish_raw(_STREAM[type(sample)], encode(sample))
         return True
 
-    def publish_raw(self, stream: str, payload: bytes) -> None:
-        """Publish an already encoded payload on ``stream`` (adapters that forward JSON)."""
+    def _publisher(self, stream: str) -> zenoh.Publisher:
         if stream not in self._publishers:
             self._publishers[stream] = publisher(self._session, key(self.cell, self.robot, stream))
-        self._publishers[stream].put(payload)
+        return self._publishers[stream]
+
+    def await_subscribers(self, timeout_s: float) -> list[str]:
+        """Wait up to ``timeout_s`` (s) until each source stream has a subscriber, so that a
+        replay's first samples are not lost to a window that is still starting; the keys
+        still without one."""
+        pubs = [self._publisher(stream) for stream in _STREAM.values()]
+        return wait_matched(pubs, timeout_s, self._stop)
+
+    def publish_raw(self, stream: str, payload: bytes) -> None:
+        """Publish an already encoded payload on ``stream`` (adapters that forward JSON)."""
+        self._publisher(stream).put(payload)
         with self._lock:
             self.published += 1
             self.counter.accept()

@@ -63,7 +63,9 @@ def sim_source(
             f"{desc.name!r}"
         )
     streaming = StreamingConfig(period_s=sc.period_s, settle_s=sc.settle_s)
-    return SimCellSource(session, cell, robot, ds, streaming, sc.speed or None)
+    return SimCellSource(
+        session, cell, robot, ds, streaming, sc.speed or None, sc.wait_subscribers_s
+    )
 
 
 class SourceThread:

@@ -45,13 +45,16 @@ class _Source:
 
 @dataclass(frozen=True, kw_only=True)
 class _Replay(_Source):
-    """A source that replays its time at ``speed`` x real time (0: as fast as possible)."""
+    """A source that replays its time at ``speed`` x real time (0: as fast as possible), once
+    its streams have subscribers or ``wait_subscribers_s`` (s) have passed (0: at once)."""
 
     speed: float = 1.0
+    wait_subscribers_s: float = 10.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
         _non_negative("speed", self.speed, "as fast as possible")
+        _non_negative("wait_subscribers_s", self.wait_subscribers_s, "at once")
 
 
 @dataclass(frozen=True, kw_only=True)

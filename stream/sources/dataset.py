@@ -143,4 +143,6 @@ def dataset_source(
             "description; describe the robot with that [tool] (the labels would be off by it)"
         )
     streaming = streaming_config(cfg, ds)
-    return DatasetSource(session, cell, robot, ds, streaming, cfg.speed or None)
+    return DatasetSource(
+        session, cell, robot, ds, streaming, cfg.speed or None, cfg.wait_subscribers_s
+    )

@@ -11,7 +11,9 @@ from stream.sources._base import Source
 
 
 class SimCellSource(Source):
-    """Streams ``ds`` at ``speed`` x real time (``None``: as fast as possible)."""
+    """Streams ``ds`` at ``speed`` x real time (``None``: as fast as possible), once each stream
+    has a subscriber or ``wait_subscribers_s`` (s) have passed: a replay can wait for its
+    window, where a live device cannot."""
 
     kind = "sim"
 
@@ -23,9 +25,19 @@ class SimCellSource(Source):
         ds: Dataset,
         cfg: StreamingConfig,
         speed: float | None = None,
+        wait_subscribers_s: float = 10.0,
     ) -> None:
         super().__init__(session, cell, robot)
         self.ds, self.cfg, self.speed = ds, cfg, speed
+        self.wait_subscribers_s = wait_subscribers_s
+        self.unheard: list[str] = []
+
+    def setup(self) -> None:
+        self.unheard = self.await_subscribers(self.wait_subscribers_s)
+
+    def diagnostics(self) -> dict:
+        """The counts, and the streams that had no subscriber when streaming began."""
+        return {**super().diagnostics(), **({"unheard": self.unheard} if self.unheard else {})}
 
     def samples(self):
         """The samples to stream, in source-time order."""

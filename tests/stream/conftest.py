@@ -18,7 +18,7 @@ from kinematics.model import RobotModel
 from learner.config import ModelConfig, TrainConfig
 from learner.features import feature_spec
 from learner.model import ErrorModel
-from stream.bus import alive_stages
+from stream.bus import alive_stages, wait_matched
 from stream.config_render import loopback_config, write_config
 
 Labels = Callable[[np.ndarray], np.ndarray]
@@ -106,11 +106,12 @@ def wait_for(cond: Callable[[], bool], timeout: float = 60.0) -> bool:
 def wait_subscribed(session, *keyexprs: str, timeout: float = 60.0) -> None:
     """Wait until ``session`` knows a subscriber on each of ``keyexprs``: a put before that is
     lost (a fixed pause before the first put was too short on a loaded 2-core machine)."""
-    for keyexpr in keyexprs:
-        pub = session.declare_publisher(keyexpr)
-        try:
-            assert wait_for(lambda pub=pub: pub.matching_status.matching, timeout), keyexpr
-        finally:
+    pubs = [session.declare_publisher(keyexpr) for keyexpr in keyexprs]
+    try:
+        waiting = wait_matched(pubs, timeout)
+        assert not waiting, f"no subscriber on {waiting}"
+    finally:
+        for pub in pubs:
             pub.undeclare()
 
 
