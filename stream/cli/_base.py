@@ -81,6 +81,31 @@ def read_data(args: argparse.Namespace) -> Dataset:
     return read_series(args.data, getattr(args, "robot", None), notice)[1]
 
 
+class ProgressBar:
+    """A tqdm bar on stderr, drawn at its first use inside the ``with`` block and not before:
+    an error in a command's set-up is then the only thing it prints. Reads and calls go to
+    the bar (``bar.update()``, ``bar.n``); set its position with ``update``, not ``bar.n =``.
+    """
+
+    def __init__(self, **kwargs: Any) -> None:
+        self._kwargs = kwargs
+        self._bar = None
+
+    def __getattr__(self, name: str) -> Any:
+        if self._bar is None:
+            from tqdm import tqdm
+
+            self._bar = tqdm(file=sys.stderr, **self._kwargs)
+        return getattr(self._bar, name)
+
+    def __enter__(self) -> ProgressBar:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._bar is not None:
+            self._bar.close()
+
+
 def add_json_flag(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="machine-readable result on stdout")
 

@@ -8,13 +8,12 @@ robocal data reference-poses program.csv --robot ur10 --n 100 --out first_poses.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from stream.cli._base import Command, add_json_flag, emit, notice
+from stream.cli._base import Command, ProgressBar, add_json_flag, emit, notice
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -40,11 +39,9 @@ class ImportIpa(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
-        from tqdm import tqdm
-
         from kinematics.importers.ipa import import_series
 
-        with tqdm(total=4, desc="import ipa", unit="stage", file=sys.stderr) as bar:
+        with ProgressBar(total=4, desc="import ipa", unit="stage") as bar:
 
             def stage_done(stage: str) -> None:
                 bar.set_postfix_str(stage, refresh=False)

@@ -7,10 +7,16 @@ robocal gap --data paper.parquet --robot fanuc_m900ib700 --start geometric --rep
 from __future__ import annotations
 
 import argparse
-import sys
 from typing import TYPE_CHECKING
 
-from stream.cli._base import Command, add_data_argument, add_json_flag, emit, notice
+from stream.cli._base import (
+    Command,
+    ProgressBar,
+    add_data_argument,
+    add_json_flag,
+    emit,
+    notice,
+)
 
 if TYPE_CHECKING:
     from kinematics.calibration import CalibrationConfig
@@ -55,8 +61,6 @@ class Gap(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
-        from tqdm import tqdm
-
         from kinematics.gap.files import gap_from_files
         from kinematics.gap.workflow import GapConfig
 
@@ -67,7 +71,7 @@ class Gap(Command):
             level=args.level,
             calibration=calibration_config(args),
         )
-        with tqdm(desc="gap", file=sys.stderr, unit="step") as bar:
+        with ProgressBar(desc="gap", unit="step") as bar:
 
             def progress(message: str) -> None:
                 bar.set_postfix_str(message)

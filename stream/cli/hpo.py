@@ -8,7 +8,6 @@ robocal hpo --data train.parquet --trials 50 --storage postgresql://user@db-host
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -16,6 +15,7 @@ from learner.hpo_config import TRIAL_WORK, HpoConfig, default_threads
 from stream.cli._base import (
     CLIUsageError,
     Command,
+    ProgressBar,
     add_base_argument,
     add_json_flag,
     emit,
@@ -80,7 +80,6 @@ class HpoCommand(Command):
     def take_action(self, args: argparse.Namespace) -> int:
         import optuna
         import torch
-        from tqdm import tqdm
 
         from learner.hpo import run_hpo
         from learner.hpo_dashboard import start_dashboard
@@ -111,14 +110,14 @@ class HpoCommand(Command):
             open_storage(storage)
         if args.dashboard:
             url = start_dashboard(storage, port=args.dashboard_port)
-            print(f"optuna-dashboard on {url}", file=sys.stderr)
+            print(f"optuna-dashboard on {url}")
         torch.set_num_threads(args.threads or default_threads(args.workers))
         ds = read_data(args)
         optuna.logging.set_verbosity(optuna.logging.WARNING)  # the bar shows progress
-        with tqdm(total=cfg.trials, desc="hpo trials", file=sys.stderr, unit="trial") as bar:
+        with ProgressBar(total=cfg.trials, desc="hpo trials", unit="trial") as bar:
 
             def on_trial(p: Progress) -> None:
-                bar.n = min(p.finished, p.total)
+                bar.update(min(p.finished, p.total) - bar.n)
                 if p.best_value is not None:
                     bar.set_postfix(best=f"{p.best_value:.4g}", refresh=False)
                 bar.refresh()

@@ -10,7 +10,6 @@ robocal experiment paper --data paper.parquet --out study/ --quick
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -25,6 +24,7 @@ from learner.config import (
 from stream.cli._base import (
     CLIUsageError,
     Command,
+    ProgressBar,
     add_base_argument,
     add_data_argument,
     add_json_flag,
@@ -71,8 +71,6 @@ class Train(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
-        from tqdm import tqdm
-
         from learner.carry import position_factor
         from learner.workflow import train_on_dataset
         from stream.reports.learner import write_trained
@@ -81,7 +79,7 @@ class Train(Command):
         cfg = TrainConfig(
             seed=args.seed, max_epochs=args.max_epochs, drift_fraction=args.drift_fraction
         )
-        with tqdm(total=cfg.max_epochs, desc="train", unit="epoch", file=sys.stderr) as bar:
+        with ProgressBar(total=cfg.max_epochs, desc="train", unit="epoch") as bar:
 
             def progress(epoch: int, val_mse: float) -> None:
                 if epoch < bar.n:  # the next base's fit (--base best), then the drift's
@@ -172,8 +170,6 @@ class Continual(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
-        from tqdm import tqdm
-
         from learner.continual import load_learner
         from learner.continual_records import prequential
         from learner.workflow import continual_on_dataset
@@ -194,7 +190,7 @@ class Continual(Command):
         n_updates = 1 + -(
             -max(0, round(len(ds) * (1 - args.test_fraction)) - cfg.init) // cfg.batch
         )
-        with tqdm(total=n_updates, desc="continual", unit="update", file=sys.stderr) as bar:
+        with ProgressBar(total=n_updates, desc="continual", unit="update") as bar:
             result = continual_on_dataset(
                 ds,
                 cfg,
@@ -298,15 +294,13 @@ class ExperimentPaper(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
-        from tqdm import tqdm
-
         from learner.experiment import StudyConfig, run_paper_study
         from stream.reports.learner import write_study
 
         ds = read_data(args)
         Path(args.out).mkdir(parents=True, exist_ok=True)  # a bad folder fails before the runs
         cfg = StudyConfig.quick(seed=args.seed) if args.quick else StudyConfig(seed=args.seed)
-        with tqdm(total=cfg.n_runs, desc="experiment", unit="run", file=sys.stderr) as bar:
+        with ProgressBar(total=cfg.n_runs, desc="experiment", unit="run") as bar:
             study = run_paper_study(ds, cfg, on_run=lambda name: bar.update())
         out_dir = write_study(study, args.out)
         emit({**study.to_dict(), "out_dir": str(out_dir)}, args.json, study.markdown)

@@ -8,11 +8,10 @@ robocal demo --serve          # prints the URL that opens the live dashboard in 
 from __future__ import annotations
 
 import argparse
-import sys
 from dataclasses import asdict
 from typing import TYPE_CHECKING
 
-from stream.cli._base import Command, add_json_flag, emit
+from stream.cli._base import Command, ProgressBar, add_json_flag, emit
 
 if TYPE_CHECKING:
     from stream.config import DashboardConfig
@@ -55,7 +54,7 @@ def print_dashboard_url(dc: DashboardConfig, robot: str = "", index: int = 0) ->
     from stream.dashboard import viewer_url
 
     url = viewer_url(dc.host, dc.web_port + index, dc.grpc_port + index)
-    print(f"dashboard{' ' + robot if robot else ''}: {url}", file=sys.stderr)
+    print(f"dashboard{' ' + robot if robot else ''}: {url}")
 
 
 class ReplayCommand(Command):
@@ -87,8 +86,6 @@ class ReplayCommand(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
-        from tqdm import tqdm
-
         from stream.bus import BusConfig
         from stream.replay import ReplayOptions, check_recordings, replay_files
 
@@ -101,12 +98,11 @@ class ReplayCommand(Command):
         )
         bus = BusConfig(connect=tuple(args.connect), multicast_scouting=not args.connect)
         total = check_recordings(args.mcap)
-        with tqdm(
+        with ProgressBar(
             total=total,
             unit="B",
             unit_scale=True,
             desc="replay",
-            file=sys.stderr,
             disable=args.json,
         ) as bar:
             seen = [0, 0]  # bytes shown, pass
@@ -148,14 +144,12 @@ class DemoCommand(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
-        from tqdm import tqdm
-
         from stream.config import DashboardConfig
         from stream.demo import run_demo
 
         if args.serve:
             print_dashboard_url(DashboardConfig(serve=True))
-        with tqdm(total=args.n, unit="pt", file=sys.stderr, desc="demo") as bar:
+        with ProgressBar(total=args.n, unit="pt", desc="demo") as bar:
             result = run_demo(
                 args.out, args.n, args.seed, lambda k: bar.update(k - bar.n), serve=args.serve
             )

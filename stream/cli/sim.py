@@ -7,9 +7,8 @@ robocal sim dataset --list
 from __future__ import annotations
 
 import argparse
-import sys
 
-from stream.cli._base import CLIUsageError, Command, add_json_flag, emit
+from stream.cli._base import CLIUsageError, Command, ProgressBar, add_json_flag, emit
 
 
 class SimDataset(Command):
@@ -39,8 +38,6 @@ class SimDataset(Command):
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
-        from tqdm import tqdm
-
         from sim_sources import get_scenario, list_scenarios, scenario_from_model, write_campaign
 
         if args.list:
@@ -53,7 +50,7 @@ class SimDataset(Command):
         scenario = get_scenario(args.scenario, scale=args.scale, noise=args.noise)
         if args.model is not None:
             scenario = scenario_from_model(args.model, scenario)
-        with tqdm(total=args.n, desc="simulating", unit="pt", file=sys.stderr) as bar:
+        with ProgressBar(total=args.n, desc="simulating", unit="pt") as bar:
             report = write_campaign(scenario, args.n, args.seed, args.out, bar.update)
         acc = report.accuracy
         text = (
