@@ -31,9 +31,10 @@ import zenoh
 
 from kinematics.dataset import remove_stale_temporaries
 from kinematics.errors import RobocalError
-from stream.bus import Received, Worker, declare_alive, publisher
+from stream.bus import declare_alive, publisher
 from stream.log import JsonLogger
 from stream.state import describe_os_error
+from stream.worker import Received, Worker
 from wire import MAX_PAYLOAD_BYTES, DropCounter, RejectedMessageError, encode, key
 
 #: The largest model snapshot a stage takes (bytes); every other stream: MAX_PAYLOAD_BYTES.

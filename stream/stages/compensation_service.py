@@ -23,12 +23,12 @@ import zenoh
 
 from kinematics.model import RobotModel
 from learner.model import ErrorModel
-from stream.bus import Received
 from stream.compensation import CompensationConfig, CompensationRequest
 from stream.compensation_guard import GuardConfig, guarded_compensate
 from stream.log import JsonLogger
 from stream.stages._base import Stage
 from stream.trust import ModelGate, ModelTrustConfig
+from stream.worker import Received
 from wire import RejectedMessageError, decode, encode
 
 #: Reasons of a model not adopted that are logged (``model_old`` is routine, only counted).

@@ -22,7 +22,6 @@ import zenoh
 
 from kinematics.model import RobotModel
 from learner.model import ErrorModel
-from stream.bus import Received
 from stream.compensation import CompensationReply
 from stream.dashboard import Dashboard, PointBatch
 from stream.log import JsonLogger
@@ -30,6 +29,7 @@ from stream.points import point_arrays
 from stream.stages._base import Stage
 from stream.stages.compensation_service import adopt
 from stream.trust import ModelGate, ModelTrustConfig
+from stream.worker import Received
 from wire import (
     DataPoint,
     Diagnostics,

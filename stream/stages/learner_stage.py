@@ -44,11 +44,11 @@ from kinematics.description import RobotDescription
 from kinematics.errors import SnapshotError
 from learner.continual_records import UpdateMetrics
 from learner.train_process import TrainProcess
-from stream.bus import Received
 from stream.learner_core import LearnerCore, LearnerStageConfig, Update
 from stream.log import JsonLogger
 from stream.stages._base import Stage
 from stream.state import AcceptedLog, write_atomic
+from stream.worker import Received
 from wire import (
     Batch,
     Metrics,

@@ -15,12 +15,12 @@ import numpy as np
 import zenoh
 
 from kinematics.description import load_description
-from stream.bus import Received
 from stream.log import JsonLogger
 from stream.mcap_io import McapRecorder
 from stream.stages._base import WAITABLE_ERRNOS, Stage
 from stream.state import describe_os_error
 from stream.trust import description_hash
+from stream.worker import Received
 
 #: The metadata record of one robot of the cell.
 ROBOT_METADATA = "robocal.robot"

@@ -17,11 +17,11 @@ from pathlib import Path
 import zenoh
 
 from kinematics.errors import ConfigError, RobocalError
-from stream.bus import Received
 from stream.log import JsonLogger
 from stream.stages._base import Stage
 from stream.state import write_atomic
 from stream.window import Batcher, Joiner, WindowConfig
+from stream.worker import Received
 from wire import (
     STREAM_TYPES,
     Batch,

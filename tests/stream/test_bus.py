@@ -9,15 +9,14 @@ import pytest
 from kinematics.errors import ConfigError
 from stream.bus import (
     BusConfig,
-    Worker,
     alive_stages,
     declare_alive,
     ephemeral_range,
     free_port,
     open_session,
     publisher,
-    subscribe,
 )
+from stream.worker import Worker, subscribe
 
 
 def test_free_ports_lie_outside_the_ephemeral_range_and_can_be_bound():

@@ -16,10 +16,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from stream.bus import BusConfig, Received, free_port, open_session
+from stream.bus import BusConfig, free_port, open_session
 from stream.log import JsonLogger
 from stream.stages import WindowStage
 from stream.window import WindowConfig
+from stream.worker import Received
 from tests.stream.wire_examples import JOINT, TEMPERATURE, TRACKER, VALID
 from wire import RejectedMessageError, decode, decode_model, key, to_dict
 

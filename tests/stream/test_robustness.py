@@ -15,9 +15,9 @@ from learner.config import ModelConfig, TrainConfig
 from learner.features import feature_spec
 from learner.model import ErrorModel
 from learner.snapshot import snapshot_to_bytes
-from stream.bus import Received, Worker
 from stream.trust import ModelGate, ModelTrustConfig, description_hash
 from stream.window import Batcher, Joiner, WindowConfig
+from stream.worker import Received, Worker
 from tests.stream.wire_examples import decode_refusal
 from wire import (
     MAX_DEPTH,
