@@ -8,6 +8,7 @@ robocal hpo --data train.parquet --trials 50 --storage postgresql://user@db-host
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -110,7 +111,7 @@ class HpoCommand(Command):
             open_storage(storage)
         if args.dashboard:
             url = start_dashboard(storage, port=args.dashboard_port)
-            print(f"optuna-dashboard on {url}")
+            print(f"optuna-dashboard on {url}", file=sys.stderr)
         torch.set_num_threads(args.threads or default_threads(args.workers))
         ds = read_data(args)
         optuna.logging.set_verbosity(optuna.logging.WARNING)  # the bar shows progress

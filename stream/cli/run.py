@@ -8,6 +8,7 @@ robocal demo --serve          # prints the URL that opens the live dashboard in 
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import asdict
 from typing import TYPE_CHECKING
 
@@ -54,7 +55,7 @@ def print_dashboard_url(dc: DashboardConfig, robot: str = "", index: int = 0) ->
     from stream.dashboard import viewer_url
 
     url = viewer_url(dc.host, dc.web_port + index, dc.grpc_port + index)
-    print(f"dashboard{' ' + robot if robot else ''}: {url}")
+    print(f"dashboard{' ' + robot if robot else ''}: {url}", file=sys.stderr)
 
 
 class ReplayCommand(Command):

@@ -1,10 +1,12 @@
 """The Rerun dashboard: what it writes to an .rrd, its bands and coverage, the robot's solid
 geometry, and the one URL that opens a served recording."""
 
+import queue
 import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -256,10 +258,14 @@ def test_robocal_run_prints_the_one_url_of_the_live_dashboard(tmp_path):
     config.write_text(RUN_CONFIG.format(dir=tmp_path, port=port, web=web, grpc=grpc))
     robocal = str(Path(sys.executable).with_name("robocal"))
     proc = subprocess.Popen([robocal, "run", "--config", str(config)], stderr=subprocess.PIPE)
+    read: queue.Queue[str] = queue.Queue()  # stderr read beside, so a missing line cannot hang
+    reader = threading.Thread(target=lambda: [read.put(x.decode()) for x in proc.stderr])
+    reader.daemon = True
+    reader.start()
     try:
-        lines = [proc.stderr.readline().decode() for _ in range(1)]
-        while not lines[-1].startswith("dashboard ur10:") and lines[-1] and len(lines) < 50:
-            lines.append(proc.stderr.readline().decode())
+        lines = [read.get(timeout=60)]
+        while not lines[-1].startswith("dashboard ur10:"):
+            lines.append(read.get(timeout=60))
         assert lines[-1].strip() == f"dashboard ur10: {viewer_url('127.0.0.1', web, grpc)}", lines
         deadline = time.monotonic() + 60.0
         while True:  # the daemon serves what the line promised
