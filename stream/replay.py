@@ -20,24 +20,30 @@ from pathlib import Path
 import zenoh
 
 from kinematics.errors import ConfigError
-from stream.bus import BusConfig, open_session, publisher
+from stream.bus import BusConfig, open_session, publisher, wait_matched
 from stream.mcap_io import SOURCE_STREAMS, Recorded, RecordingReader
 from wire import RejectedMessageError, split_key
 
 
 @dataclass(frozen=True, kw_only=True)
 class ReplayOptions:
-    """What to republish and how fast (``speed`` x real time; None: as fast as possible)."""
+    """What to republish and how fast (``speed`` x real time; None: as fast as possible), once
+    each key has a subscriber or ``wait_subscribers_s`` (s) have passed since the start."""
 
     speed: float | None = None
     topics: tuple[str, ...] = SOURCE_STREAMS
     start_s: float | None = None
     end_s: float | None = None
     loops: int | None = 1
+    wait_subscribers_s: float = 10.0
 
     def __post_init__(self) -> None:
         if self.speed is not None and not (math.isfinite(self.speed) and self.speed > 0):
             raise ConfigError(f"replay speed must be > 0, got {self.speed}")
+        if not (math.isfinite(self.wait_subscribers_s) and self.wait_subscribers_s >= 0):
+            raise ConfigError(
+                f"replay wait for subscribers must be >= 0 s, got {self.wait_subscribers_s}"
+            )
         if not self.topics:
             raise ConfigError("replay needs at least one topic")
         for name, value in (("start", self.start_s), ("end", self.end_s)):
@@ -60,13 +66,14 @@ class ReplayOptions:
 
 @dataclass
 class ReplayResult:
-    """What a replay published: messages, passes, per stream, the files cut short, and
-    whether Ctrl-C stopped it."""
+    """What a replay published: messages, passes, per stream, the files cut short, the keys
+    nobody subscribed to in time, and whether Ctrl-C stopped it."""
 
     published: int = 0
     passes: int = 0
     by_stream: dict[str, int] = field(default_factory=dict)
     truncated: list[str] = field(default_factory=list)
+    unheard: list[str] = field(default_factory=list)
     stopped: bool = False
 
 
@@ -105,6 +112,7 @@ def replay_to_bus(
     end_ns = None if opts.end_s is None else first + int(opts.end_s * 1e9)
     pubs: dict[str, zenoh.Publisher] = {}
     result = ReplayResult()
+    heard_by = time.monotonic() + opts.wait_subscribers_s
     t_range = [math.inf, -math.inf]
     max_seq: dict[str, int] = {}
     try:
@@ -114,6 +122,10 @@ def replay_to_bus(
             done_before, wall0, log0 = 0, None, None
             for reader in (RecordingReader(p) for p in paths):
                 for rec in reader.messages(opts.wants, start_ns, end_ns):
+                    if rec.key not in pubs:  # a subscriber still starting would miss its start
+                        pubs[rec.key] = publisher(session, rec.key)
+                        left = max(0.0, heard_by - time.monotonic())
+                        result.unheard += wait_matched([pubs[rec.key]], left)
                     if opts.speed is not None:
                         if wall0 is None:
                             wall0, log0 = time.monotonic(), rec.log_time_ns
@@ -126,8 +138,6 @@ def replay_to_bus(
                         _track(rec, t_range, max_seq)
                     else:
                         payload = _shifted(payload, k * span, k * (max_seq.get(rec.key, -1) + 1))
-                    if rec.key not in pubs:
-                        pubs[rec.key] = publisher(session, rec.key)
                     pubs[rec.key].put(payload)
                     stream = rec.key.rsplit("/", 1)[-1]
                     result.by_stream[stream] = result.by_stream.get(stream, 0) + 1
@@ -171,14 +181,12 @@ def replay_files(
     paths: Sequence[str | Path],
     bus: BusConfig,
     options: ReplayOptions | None = None,
-    settle_s: float = 1.0,
     on_progress: Callable[[int, int], None] | None = None,
 ) -> ReplayResult:
-    """Open a session from ``bus``, wait ``settle_s`` for links, replay ``paths``."""
+    """Open a session from ``bus`` and replay ``paths`` (each key once it has a subscriber)."""
     check_recordings(paths)  # a missing or foreign file fails before the session opens
     session = open_session(bus)
     try:
-        time.sleep(settle_s)
         return replay_to_bus(paths, session, options=options, on_progress=on_progress)
     finally:
         session.close()

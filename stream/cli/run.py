@@ -84,6 +84,12 @@ class ReplayCommand(Command):
         parser.add_argument(
             "--connect", action="append", default=[], help="endpoint, e.g. tcp/127.0.0.1:7447"
         )
+        parser.add_argument(
+            "--wait-subscribers",
+            type=float,
+            default=10.0,
+            help="s to wait for a subscriber on each key before it is replayed (0: none)",
+        )
         add_json_flag(parser)
 
     def take_action(self, args: argparse.Namespace) -> int:
@@ -96,6 +102,7 @@ class ReplayCommand(Command):
             start_s=args.start,
             end_s=args.end,
             loops=None if args.loop else 1,
+            wait_subscribers_s=args.wait_subscribers,
         )
         bus = BusConfig(connect=tuple(args.connect), multicast_scouting=not args.connect)
         total = check_recordings(args.mcap)
@@ -123,6 +130,8 @@ class ReplayCommand(Command):
             f"\n{p}: unfinished (recorder killed?), replayed up to its last complete chunk"
             for p in result.truncated
         )
+        if result.unheard:
+            text += f"\nnobody subscribed to {', '.join(result.unheard)} in time"
         emit(out, args.json, text + ("\nstopped" if result.stopped else ""))
         return 0
 

@@ -6,6 +6,7 @@ import json
 import signal
 import subprocess
 import sys
+import threading
 import time
 import tracemalloc
 
@@ -165,9 +166,11 @@ def test_a_killed_recorder_is_read_up_to_its_last_flush(tmp_path, capsys):
     assert mcap_seqs == seqs(got)
     capsys.readouterr()
     argv = ["replay", str(path), "--connect", f"tcp/127.0.0.1:{free_port()}", "--json"]
+    argv += ["--wait-subscribers", "0.2"]  # nobody listens: replayed anyway, and said
     assert main(argv) == 0  # robocal replay takes the unfinished file and says so
     out = json.loads(capsys.readouterr().out)
     assert out["published"] == len(got) and out["truncated"] == [str(path)]
+    assert out["unheard"] == ["robocal/c/r/joints"]
 
 
 def test_a_recording_cut_at_any_byte_reads_as_its_whole_chunks(tmp_path):
@@ -279,6 +282,31 @@ def test_replay_keeps_order_speed_topics_times_and_loops(tmp_path):
     b.close()
     a.close()
     assert [json.loads(p)["seq"] for _, p in got] == list(range(20))
+
+
+@pytest.mark.integration
+def test_a_replay_started_before_its_subscriber_loses_nothing(tmp_path):
+    path = tmp_path / "r.mcap"
+    rec = McapRecorder(path)
+    for i in range(200):
+        rec.add("robocal/c/r/joints", joint(i), log_time_ns=i)
+    rec.close()
+    port = free_port()
+    a = open_session(BusConfig.loopback(port, listen=True))
+    b = open_session(BusConfig.loopback(port, listen=False))
+    done = []
+    replay = threading.Thread(target=lambda: done.append(replay_to_bus(path, b)), daemon=True)
+    replay.start()
+    time.sleep(1.0)  # as fast as possible, all 200 would be gone by now
+    got = []
+    a.declare_subscriber("robocal/**", lambda s: got.append(json.loads(s.payload.to_bytes())))
+    replay.join(30)
+    deadline = time.monotonic() + 10
+    while len(got) < 200 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    b.close()
+    a.close()
+    assert done[0].unheard == [] and [m["seq"] for m in got] == list(range(200))
 
 
 @pytest.mark.parametrize(
