@@ -24,7 +24,9 @@ def test_a_replay_started_before_its_subscriber_loses_nothing(dataset_file):
     pub = open_session(BusConfig.loopback(port, listen=True))
     sub = open_session(BusConfig.loopback(port, listen=False))
     try:
-        cfg = DatasetSourceConfig(path=str(dataset_file), speed=0, wait_subscribers_s=60)
+        cfg = DatasetSourceConfig(
+            path=str(dataset_file), speed=0, wait_subscribers_s=60, joint_rate_hz=25.0
+        )
         source = dataset_source(pub, CELL, ROBOT, cfg, load_description(ROBOT))
         thread = threading.Thread(target=source.start, daemon=True)
         thread.start()
@@ -50,7 +52,9 @@ def test_a_replay_started_before_its_subscriber_loses_nothing(dataset_file):
 def test_a_replay_nobody_hears_streams_after_its_wait_and_says_so(dataset_file):
     session = open_session(BusConfig.loopback(free_port(), listen=True))
     try:
-        cfg = DatasetSourceConfig(path=str(dataset_file), speed=0, wait_subscribers_s=0.3)
+        cfg = DatasetSourceConfig(
+            path=str(dataset_file), speed=0, wait_subscribers_s=0.3, joint_rate_hz=25.0
+        )
         source = dataset_source(session, CELL, ROBOT, cfg, load_description(ROBOT))
         start = time.monotonic()
         source.start()
