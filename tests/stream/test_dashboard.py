@@ -259,9 +259,12 @@ def test_robocal_run_prints_the_one_url_of_the_live_dashboard(tmp_path):
     robocal = str(Path(sys.executable).with_name("robocal"))
     proc = subprocess.Popen([robocal, "run", "--config", str(config)], stderr=subprocess.PIPE)
     read: queue.Queue[str] = queue.Queue()  # stderr read beside, so a missing line cannot hang
-    reader = threading.Thread(target=lambda: [read.put(x.decode()) for x in proc.stderr])
-    reader.daemon = True
-    reader.start()
+
+    def pump() -> None:
+        for line in proc.stderr:
+            read.put(line.decode())
+
+    threading.Thread(target=pump, daemon=True).start()
     try:
         lines = [read.get(timeout=60)]
         while not lines[-1].startswith("dashboard ur10:"):
