@@ -286,7 +286,9 @@ def test_cli_rejects_bad_input_with_exit_2(tmp_path, capsys):
 @pytest.mark.integration
 def test_two_worker_processes_share_one_journal(tmp_path):
     data = write_dataset(toy_dataset(80), tmp_path / "d.parquet")
-    (tmp_path / "space.toml").write_text(TINY_TOML)
+    # batches of 64: each worker's final retrain (up to 1,500 epochs on 72 points) takes 2
+    # steps an epoch, not 9
+    (tmp_path / "space.toml").write_text(TINY_TOML.replace("[8, 32]", "[64, 64]"))
     journal = tmp_path / "shared.journal"
     robocal = Path(sys.executable).parent / "robocal"
     workers = [
@@ -294,9 +296,9 @@ def test_two_worker_processes_share_one_journal(tmp_path):
             [
                 str(robocal), "hpo", "--data", str(data), "--trials", "6",
                 "--storage", str(journal), "--space", str(tmp_path / "space.toml"),
-                # 60 epochs: a trial takes ~0.3 s, so both workers start one before the six run
+                # 200 epochs: a trial takes ~2 s, so both workers start one before the six run
                 # out (at 6 epochs all six ran in 0.3 s and one worker could take them all)
-                "--folds", "2", "--epochs", "60", "--no-prune", "--json",
+                "--folds", "2", "--epochs", "200", "--no-prune", "--json",
                 "--out", str(tmp_path / f"m{k}.safetensors"),
             ],
             stdout=subprocess.PIPE,
