@@ -89,11 +89,13 @@ class Source(abc.ABC):
             self._publishers[stream] = publisher(self._session, key(self.cell, self.robot, stream))
         return self._publishers[stream]
 
-    def await_subscribers(self, timeout_s: float) -> list[str]:
-        """Wait up to ``timeout_s`` (s) until each source stream has a subscriber, so that a
-        replay's first samples are not lost to a window that is still starting; the keys
-        still without one."""
-        pubs = [self._publisher(stream) for stream in _STREAM.values()]
+    def await_subscribers(
+        self, timeout_s: float, streams: tuple[str, ...] = tuple(_STREAM.values())
+    ) -> list[str]:
+        """Wait up to ``timeout_s`` (s) until each of the ``streams`` this source will publish
+        has a subscriber, so that a replay's first samples are not lost to a window that is
+        still starting; the keys still without one."""
+        pubs = [self._publisher(stream) for stream in streams]
         return wait_matched(pubs, timeout_s, self._stop)
 
     def publish_raw(self, stream: str, payload: bytes) -> None:

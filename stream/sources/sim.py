@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import zenoh
 
-from kinematics.dataset import Dataset
+from kinematics.dataset import Dataset, temperature_columns
 from sim_sources.streaming import StreamingConfig, cell_samples, paced
 from stream.sources._base import Source
 
@@ -33,7 +33,15 @@ class SimCellSource(Source):
         self.unheard: list[str] = []
 
     def setup(self) -> None:
-        self.unheard = self.await_subscribers(self.wait_subscribers_s)
+        self.unheard = self.await_subscribers(self.wait_subscribers_s, self.streams())
+
+    def streams(self) -> tuple[str, ...]:
+        """The streams it publishes: temperature only where the dataset has a thermometer."""
+        return (
+            "joints",
+            "tracker",
+            *(("temperature",) if temperature_columns(self.ds.table) else ()),
+        )
 
     def diagnostics(self) -> dict:
         """The counts, and the streams that had no subscriber when streaming began."""

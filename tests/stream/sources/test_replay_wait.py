@@ -9,12 +9,15 @@ import time
 
 import pytest
 
+from kinematics.dataset import Dataset, read_dataset, temperature_columns, write_dataset
 from kinematics.description import load_description
 from stream.bus import BusConfig, free_port, open_session
 from stream.mcap_io import SOURCE_STREAMS
 from stream.sources.config import DatasetSourceConfig
 from stream.sources.dataset import dataset_source
+from tests.stream.conftest import wait_subscribed
 from tests.stream.sources.conftest import CELL, ROBOT, Collector
+from wire import key
 
 pytestmark = pytest.mark.integration
 
@@ -64,3 +67,30 @@ def test_a_replay_nobody_hears_streams_after_its_wait_and_says_so(dataset_file):
         assert diag["unheard"] == [f"robocal/{CELL}/{ROBOT}/{s}" for s in SOURCE_STREAMS]
     finally:
         session.close()
+
+
+def test_a_dataset_without_thermometers_waits_only_for_joints_and_tracker(dataset_file, tmp_path):
+    ds = read_dataset(dataset_file)
+    bare = tmp_path / "no_thermometer.parquet"
+    write_dataset(Dataset(ds.table.drop(columns=temperature_columns(ds.table)), ds.meta), bare)
+    port = free_port()
+    pub = open_session(BusConfig.loopback(port, listen=True))
+    sub = open_session(BusConfig.loopback(port, listen=False))
+    try:
+        heard = {
+            s: sub.declare_subscriber(key(CELL, ROBOT, s), lambda _: None)
+            for s in SOURCE_STREAMS
+            if s != "temperature"
+        }
+        wait_subscribed(pub, *(key(CELL, ROBOT, s) for s in heard))
+        cfg = DatasetSourceConfig(
+            path=str(bare), speed=0, wait_subscribers_s=30, joint_rate_hz=25.0
+        )
+        source = dataset_source(pub, CELL, ROBOT, cfg, load_description(ROBOT))
+        start = time.monotonic()
+        source.start()
+        assert time.monotonic() - start < 10  # nobody needs to hear a temperature it never sends
+        assert source.published > 0 and "unheard" not in source.diagnostics()
+    finally:
+        sub.close()
+        pub.close()
