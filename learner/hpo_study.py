@@ -168,11 +168,12 @@ def make_study(
 
 @dataclass(frozen=True, kw_only=True)
 class Progress:
-    """What a worker knows after one of its trials: the study's finished count and best value."""
+    """What a worker knows after one of its trials (``trial``; None: before its first, once
+    the study is open): the study's finished count and best value."""
 
     finished: int
     total: int
-    trial: FrozenTrial
+    trial: FrozenTrial | None
     best_value: float | None
 
 
@@ -197,6 +198,8 @@ def run_trials(
         raise ConfigError(f"hpo trials must be >= 1, got {n_trials}")
     start = time.monotonic()
     mine: list[int] = []
+    if on_trial is not None:
+        on_trial(_progress(study, n_trials, None))
     while timeout_s is None or time.monotonic() - start < timeout_s:
         with lock() if callable(lock) else _file_lock(lock):
             fail_stale_trials(study)
@@ -215,15 +218,17 @@ def run_trials(
             study.tell(trial, state=TrialState.FAIL)
             raise
         if on_trial is not None:
-            on_trial(
-                Progress(
-                    finished=len(study.get_trials(deepcopy=False, states=FINISHED)),
-                    total=n_trials,
-                    trial=frozen,
-                    best_value=best_value(study),
-                )
-            )
+            on_trial(_progress(study, n_trials, frozen))
     return mine
+
+
+def _progress(study: optuna.Study, n_trials: int, trial: FrozenTrial | None) -> Progress:
+    return Progress(
+        finished=len(study.get_trials(deepcopy=False, states=FINISHED)),
+        total=n_trials,
+        trial=trial,
+        best_value=best_value(study),
+    )
 
 
 def best_value(study: optuna.Study) -> float | None:

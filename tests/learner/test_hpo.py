@@ -191,7 +191,12 @@ def test_sqlite_study_resumes(tmp_path):
 
     for total, ran in [(3, [0, 1, 2]), (5, [3, 4])]:
         study = make_study(open_storage(url), "s", seed=0, max_resource=1)
-        assert run_trials(study, objective, total, lock=lock_path(url)) == ran
+        seen = []
+        assert run_trials(study, objective, total, lock=lock_path(url), on_trial=seen.append) == ran
+        # reported once as the study opens (a resumed one at its count), then after each trial
+        assert [(p.finished, p.trial is None) for p in seen] == [(ran[0], True)] + [
+            (n + 1, False) for n in ran
+        ]
     assert len({t.params["x"] for t in study.trials}) == 5
     assert lock_path(url) == tmp_path / "hpo.db.hpo-lock"
 
