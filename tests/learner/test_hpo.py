@@ -301,8 +301,8 @@ def test_two_worker_processes_share_one_journal(tmp_path):
             [
                 str(robocal), "hpo", "--data", str(data), "--trials", "6",
                 "--storage", str(journal), "--space", str(tmp_path / "space.toml"),
-                # 200 epochs: a trial takes ~2 s, so both workers start one before the six run
-                # out (at 6 epochs all six ran in 0.3 s and one worker could take them all)
+                # 200 epochs: a trial takes 1.3-1.7 s alone, so both workers start one before the
+                # six run out (at 6 epochs all six ran in 0.3 s and one worker could take them all)
                 "--folds", "2", "--epochs", "200", "--no-prune", "--json",
                 "--out", str(tmp_path / f"m{k}.safetensors"),
             ],
